@@ -1,0 +1,312 @@
+"""Tests for tflock.record: write synthetic recordings, verify them and read them back."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from tflock.record import (
+    Frame,
+    Recorder,
+    WorldSpec,
+    heading_colors,
+    read_recording,
+    verify_recording,
+)
+
+CONFIG = 'model = "vicsek"\n\n[params]\nn = 40\nnoise = 0.3\nboundary = "periodic"\n'
+METRICS = {"order": "polarisation phi", "speed": "mean speed |v|"}
+STEPS = 20
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def strict_mode():
+    """Make Rerun raise on malformed data instead of warning."""
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
+
+
+def synthetic_frame(rng: np.random.Generator, dim: int, m: int = 40, n_edges: int | None = 30,
+                    leader: bool = False) -> Frame:
+    pos = rng.random((m, dim), dtype=np.float32) * 10.0
+    d = rng.normal(size=(m, dim)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    edges = None
+    if n_edges is not None:
+        ij = rng.integers(0, m, size=(n_edges, 2))
+        edges = pos[ij]  # (E, 2, dim)
+    return Frame(positions=pos, directions=d, arrow_length=0.5, edges=edges,
+                 leader=pos[0] if leader else None, leader_direction=d[0] if leader else None)
+
+
+def write_run(path: Path, dim: int, boundary: str, edges: bool, leader: bool) -> dict[str, float]:
+    rng = np.random.default_rng(dim)
+    last: dict[str, float] = {}
+    with Recorder(model="vicsek", config_toml=CONFIG, world=WorldSpec(dim, boundary, 10.0, dt=0.1),
+                  metrics=METRICS, path=path, metrics_table=path.with_suffix(".csv")) as rec:
+        for step in range(STEPS):
+            rec.log_frame(step, synthetic_frame(rng, dim, n_edges=30 if edges else None, leader=leader))
+            last = {"order": float(rng.random()), "speed": 1.0 + step}
+            rec.log_metrics(step, last)
+    return last
+
+
+@pytest.mark.parametrize(
+    ("dim", "boundary", "edges", "leader"),
+    [(2, "periodic", True, False), (2, "open", False, True), (3, "reflecting", True, True), (3, "open", False, False)],
+)
+def test_write_verify_read(tmp_path: Path, dim: int, boundary: str, edges: bool, leader: bool) -> None:
+    path = tmp_path / "sub" / "run.rrd"  # the parent directory is created
+    last = write_run(path, dim, boundary, edges, leader)
+
+    assert verify_recording(path)
+    summary = read_recording(path)
+    assert summary.model == "vicsek"
+    assert summary.config_toml == CONFIG
+    assert summary.frames == STEPS
+    assert summary.steps == list(range(STEPS))
+    assert summary.last_step == STEPS - 1
+    assert summary.metric_rows == STEPS
+    assert summary.final_metrics == pytest.approx(last)
+    assert summary.metric_descriptions == METRICS
+    ents = set(summary.entities)
+    assert {"/world/agents", "/world/agents/headings", "/metrics/order", "/metrics/speed", "/config"} <= ents
+    assert ("/world/edges" in ents) == edges
+    assert ("/world/leader" in ents) == leader
+    assert ("/world/bounds" in ents) == (boundary != "open")
+
+    with open(path.with_suffix(".csv"), newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["step", "order", "speed"]
+    assert len(rows) == STEPS + 1
+    assert [int(r[0]) for r in rows[1:]] == list(range(STEPS))
+    assert float(rows[-1][1]) == last["order"]
+
+
+def test_zero_edges_explicit_colors_and_subset_metrics(tmp_path: Path) -> None:
+    path = tmp_path / "zero.rrd"
+    rng = np.random.default_rng(1)
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS,
+                  path=path, metrics_table=tmp_path / "m.csv") as rec:
+        frame = synthetic_frame(rng, 2, m=5, n_edges=0)
+        frame.colors = np.full((5, 3), 200, np.uint8)
+        rec.log_frame(0, frame)
+        rec.log_frame(1, synthetic_frame(rng, 2, m=0, n_edges=0))  # empty frame
+        rec.log_metrics(0, {"order": 0.5})  # 'speed' left out: empty cell
+        with pytest.raises(ValueError, match="unknown metric"):
+            rec.log_metrics(1, {"nope": 1.0})
+        with pytest.raises(ValueError, match="positions"):
+            rec.log_frame(2, Frame(np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), 1.0))
+    rec.close()  # idempotent
+    assert verify_recording(path)
+    summary = read_recording(path)
+    assert summary.frames == 2 and "/world/edges" in summary.entities
+    assert summary.final_metrics == {"order": 0.5}
+    assert (tmp_path / "m.csv").read_text().splitlines() == ["step,order,speed", "0,0.5,"]
+
+
+def test_metrics_table_only_and_validation(tmp_path: Path) -> None:
+    table = tmp_path / "only.csv"
+    with Recorder(model="m", config_toml="", world=WorldSpec(3, "open", 2.0), metrics=METRICS,
+                  metrics_table=table) as rec:
+        assert not rec.enabled
+        rec.log_frame(0, synthetic_frame(np.random.default_rng(3), 3))
+        rec.log_metrics(0, {"order": 0.25, "speed": 2.0})
+    assert table.read_text().splitlines() == ["step,order,speed", "0,0.25,2.0"]
+    assert list(tmp_path.iterdir()) == [table]
+    with pytest.raises(ValueError, match="metric name"):
+        Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={"a/b": "x"})
+    with pytest.raises(ValueError, match="boundary"):
+        WorldSpec(2, "torus", 1.0)
+    with pytest.raises(ValueError, match="dim"):
+        WorldSpec(4, "open", 1.0)
+
+
+def test_heading_colors() -> None:
+    angles = np.array([0.0, 2 * math.pi / 3, 4 * math.pi / 3, -2 * math.pi / 3, math.pi])
+    d = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    rgb = heading_colors(d)
+    assert rgb.dtype == np.uint8 and rgb.shape == (5, 3)
+    assert rgb.tolist() == [[255, 0, 0], [0, 255, 0], [0, 0, 255], [0, 0, 255], [0, 255, 255]]
+
+
+@pytest.mark.parametrize("bad", ["file", "proc"])
+def test_unwritable_path_raises_before_logging(tmp_path: Path, bad: str) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    path = blocker / "run.rrd" if bad == "file" else Path("/proc/tflock-test.rrd")
+    with pytest.raises(OSError, match="cannot write the recording"):
+        Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={}, path=path)
+
+
+def test_not_a_recording(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.rrd"
+    junk.write_text("hello")
+    with pytest.raises(ValueError, match="cannot read"):
+        read_recording(junk)
+    assert not verify_recording(junk)
+    with pytest.raises(ValueError):
+        read_recording(tmp_path / "missing.rrd")
+    other = tmp_path / "other.rrd"  # a valid .rrd that tflock did not write
+    with rr.RecordingStream("other") as stream:
+        stream.save(other)
+        stream.log("points", rr.Points2D([[0.0, 0.0]]))
+    with pytest.raises(ValueError, match="not a tflock recording"):
+        read_recording(other)
+
+
+def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    if not sys.platform.startswith("linux"):
+        pytest.skip("display check is Linux-only")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(RuntimeError, match="--spawn needs a display"):
+        Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={}, spawn=True,
+                 path=tmp_path / "x.rrd")
+
+
+CHILD = textwrap.dedent(
+    """
+    import signal, sys
+    import numpy as np
+    from tflock.record import Frame, Recorder, WorldSpec
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    rng = np.random.default_rng(0)
+    rec = Recorder(model="vicsek", config_toml="a = 1\\n", world=WorldSpec(2, "periodic", 10.0),
+                   metrics={"order": "phi"}, path=sys.argv[1])
+    try:
+        step = 0
+        while True:
+            pos = rng.random((200, 2), dtype=np.float32) * 10
+            rec.log_frame(step, Frame(pos, np.ones((200, 2), np.float32), 0.5, edges=pos[:100].reshape(50, 2, 2)))
+            rec.log_metrics(step, {"order": 0.5})
+            step += 1
+            if step == 5:
+                print("ready", flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        rec.close()
+    """
+)
+
+
+def test_interrupted_run_is_complete(tmp_path: Path) -> None:
+    """SIGTERM (mapped to KeyboardInterrupt) and SIGINT both leave a finalised file (two children in parallel)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    runs = {}
+    try:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            path = tmp_path / f"interrupted-{sig.name}.rrd"
+            runs[sig] = (path, subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE,
+                                                text=True, env=env))
+        for sig, (_, child) in runs.items():
+            assert child.stdout is not None
+            assert child.stdout.readline().strip() == "ready"
+            time.sleep(0.2)
+            child.send_signal(sig)
+        for _, child in runs.values():
+            assert child.wait(timeout=15) == 0
+    finally:
+        for _, child in runs.values():
+            if child.poll() is None:
+                child.kill()
+    for path, _ in runs.values():
+        assert verify_recording(path), path
+        summary = read_recording(path)
+        assert summary.frames >= 5
+        assert summary.metric_rows >= 5
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_port(port: int, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    raise TimeoutError(f"nothing listens on port {port}")
+
+
+def test_tee_file_and_grpc(tmp_path: Path) -> None:
+    """`connect` streams to a running receiver while the file sink still gets everything."""
+    from tflock.record import rerun_executable
+
+    port = _free_port()
+    received = tmp_path / "received.rrd"
+    receiver = subprocess.Popen([*rerun_executable(), "--port", str(port), "--save", str(received)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_for_port(port)
+        path = tmp_path / "tee.rrd"
+        rng = np.random.default_rng(2)
+        with Recorder(model="vicsek", config_toml=CONFIG, world=WorldSpec(2, "periodic", 10.0), metrics=METRICS,
+                      path=path, connect=f"rerun+http://127.0.0.1:{port}/proxy") as rec:
+            for step in range(5):
+                rec.log_frame(step, synthetic_frame(rng, 2))
+                rec.log_metrics(step, {"order": 0.1, "speed": 1.0})
+        assert read_recording(path).frames == 5
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                if read_recording(received).frames == 5:
+                    break
+            except ValueError:
+                pass
+            time.sleep(0.2)
+        assert read_recording(received).frames == 5
+    finally:
+        receiver.send_signal(signal.SIGINT)
+        try:
+            receiver.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            receiver.kill()
+
+
+def test_open_viewer_web(tmp_path: Path) -> None:
+    """`open_viewer(web=True)` serves the web viewer until interrupted."""
+    path = tmp_path / "view.rrd"
+    write_run(path, 2, "periodic", edges=True, leader=False)
+    web, grpc = _free_port(), _free_port()
+    code = (
+        "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "from tflock.record import open_viewer\n"
+        f"open_viewer(sys.argv[1], web=True, port={web}, grpc_port={grpc})\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    child = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True, env=env,
+                             stderr=subprocess.DEVNULL)
+    try:
+        assert child.stdout is not None
+        line = child.stdout.readline()
+        assert f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy" in line
+        _wait_for_port(web)
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=5) as resp:
+            assert resp.status == 200
+        child.send_signal(signal.SIGINT)
+        assert child.wait(timeout=10) == 0
+    finally:
+        if child.poll() is None:
+            child.kill()
