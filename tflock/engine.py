@@ -1,0 +1,93 @@
+"""One Taichi initialisation per process: arch, CPU threads and floating-point precision.
+
+Taichi cannot be re-initialised safely once fields or ndarrays exist (taichi-dev/taichi#4468), so every
+simulation in a process shares the settings of the first :func:`init_engine` call. A later call with other
+settings raises :class:`EngineError`; run such work in a new process (``python -m tflock ...``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # before the import: no banner on stdout
+
+import taichi as ti  # noqa: E402
+
+ARCHES = ("cpu", "cuda", "vulkan", "auto")
+PRECISIONS = ("f32", "f64")
+
+
+class EngineError(RuntimeError):
+    """The requested engine settings cannot be honoured in this process."""
+
+
+@dataclass(frozen=True)
+class EngineInfo:
+    """Settings Taichi runs with in this process."""
+
+    arch: str          # the arch actually in use: cpu, cuda or vulkan
+    requested_arch: str
+    threads: int       # CPU threads (0 for GPU arches)
+    precision: str     # f32 or f64
+
+    @property
+    def real(self) -> type:
+        """NumPy dtype of floating-point state arrays."""
+        return np.float32 if self.precision == "f32" else np.float64
+
+
+_current: EngineInfo | None = None
+
+
+def _arch_name(arch: object) -> str:
+    name = str(arch).rsplit(".", 1)[-1]
+    return "cpu" if name in ("x64", "arm64") else name
+
+
+def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> EngineInfo:
+    """Initialise Taichi once; later calls must ask for the same settings (or are no-ops when they do).
+
+    ``threads = 0`` uses every core. ``arch = "auto"`` takes CUDA, then Vulkan, then the CPU. Asking for a GPU
+    arch that this machine lacks is an error, not a silent fallback.
+    """
+    global _current
+    if arch not in ARCHES:
+        raise EngineError(f"engine.arch: must be one of {', '.join(ARCHES)}, got {arch!r}")
+    if precision not in PRECISIONS:
+        raise EngineError(f"engine.precision: must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    n_threads = threads if threads > 0 else (os.cpu_count() or 1)
+    if _current is not None:
+        same = _current.requested_arch == arch and _current.precision == precision
+        if same and (_current.arch != "cpu" or _current.threads == n_threads):
+            return _current
+        raise EngineError(
+            f"engine: Taichi already runs here with arch={_current.arch}, threads={_current.threads}, "
+            f"precision={_current.precision}; other settings need a new process"
+        )
+    fp = ti.f32 if precision == "f32" else ti.f64
+    # a GPU arch that is missing logs fallback warnings; our own one-line error replaces them
+    quiet = ti.WARN if arch == "cpu" else ti.ERROR
+    common = dict(default_fp=fp, default_ip=ti.i32, cpu_max_num_threads=n_threads, log_level=quiet)
+    arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu]}
+    with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
+        ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
+    if arch not in arches:
+        used = _arch_name(ti.lang.impl.current_cfg().arch)
+        if used != arch:
+            ti.reset()
+            raise EngineError(f"engine.arch: {arch} is not available on this machine; allowed here: cpu, auto")
+    used = _arch_name(ti.lang.impl.current_cfg().arch)
+    ti.set_logging_level(ti.WARN)
+    _current = EngineInfo(arch=used, requested_arch=arch, threads=n_threads if used == "cpu" else 0,
+                          precision=precision)
+    return _current
+
+
+def current_engine() -> EngineInfo | None:
+    """The settings of this process's Taichi, or None before :func:`init_engine`."""
+    return _current

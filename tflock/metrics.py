@@ -1,0 +1,170 @@
+"""Order parameters and neighbour-graph metrics computed in kernels over all agents (DESIGN.md section 4).
+
+Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
+partials are added in NumPy, so metrics do not change with the thread count. Clusters are the connected
+components of the graph |x_i - x_j| <= R, found with a lock-free parallel union-find (hooking by ``atomic_min``,
+so each component's root is its smallest cell-sorted slot, whatever the thread timing).
+"""
+
+
+import functools
+import math
+
+import numpy as np
+import taichi as ti
+
+from tflock.neighbors import (
+    CellGrid,
+    load_ivec,
+    load_vec,
+    same_cell,
+    span_count,
+    stencil_span,
+)
+from tflock.space import OPEN, displacement
+
+BLOCK = 4096
+
+
+def n_blocks(n: int) -> int:
+    return max(1, math.ceil(n / BLOCK))
+
+
+@ti.kernel
+def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
+    for blk in range(partial.shape[0]):
+        c = 0.0
+        s = 0.0
+        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+            c += ti.cos(theta[i])
+            s += ti.sin(theta[i])
+        partial[blk, 0] = c
+        partial[blk, 1] = s
+
+
+@functools.lru_cache(maxsize=8)
+def _scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
+    return ti.ndarray(dtype, shape)
+
+
+def heading_order(theta: ti.Ndarray, n: int) -> tuple[float, float]:
+    """Polarization |mean (cos, sin)| and circular mean heading in [0, 2 pi) (Vicsek 1995 order parameter)."""
+    partial = _scratch((n_blocks(n), 2), theta.dtype)
+    _angle_block_sums(theta, n, partial)
+    c, s = partial.to_numpy().astype(np.float64).sum(axis=0) / n
+    return float(math.hypot(c, s)), float(math.atan2(s, c) % (2 * math.pi))
+
+
+@ti.func
+def _find(parent: ti.template(), x):
+    while parent[x] != x:
+        x = parent[x]
+    return x
+
+
+@ti.func
+def _union(parent: ti.template(), a, z):
+    """Merge the sets of a and z; returns the root the merged set had when the hook succeeded.
+
+    Lock-free: the larger root is hooked under the smaller value with atomic_min; if another thread changed
+    that parent meanwhile, the old parent is merged in its place, so no link is ever lost.
+    """
+    done = False
+    while not done:
+        a = _find(parent, a)
+        z = _find(parent, z)
+        if a == z:
+            done = True
+        else:
+            if a < z:
+                a, z = z, a
+            old = ti.atomic_min(parent[a], z)
+            if old == a:
+                done = True
+            else:
+                a = old
+    return z
+
+
+@ti.kernel
+def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), order: ti.types.ndarray(),
+           parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
+           result: ti.types.ndarray()):
+    for s in range(n):
+        parent[s] = s
+        size[s] = 0
+    for s in range(n):  # degrees: branch-free, vectorisable
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        count = 0
+        for o in range(span_count(boundary, dim)):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], start[hi]):
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
+                if ti.static(boundary == OPEN):
+                    w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                count += w
+        degree[order[s]] = count
+    for s in range(n):  # union(s, k) for every neighbour k < s
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        root = s  # a recent root of s's set: saves walking s's chain for every neighbour
+        for o in range(span_count(boundary, dim)):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], ti.min(start[hi], s)):
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                if d.norm_sqr() <= radius * radius and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
+                    root = _union(parent, root, k)
+    for s in range(n):
+        parent[s] = _find(parent, s)
+    for s in range(n):
+        ti.atomic_add(size[parent[s]], 1)
+    result[0] = 0
+    result[1] = 0
+    result[2] = 0
+    for s in range(n):
+        if parent[s] == s:
+            ti.atomic_add(result[0], 1)
+            ti.atomic_max(result[1], size[s])
+        ti.atomic_max(result[2], degree[s])
+
+
+@ti.kernel
+def _degree_block_sums(degree: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
+    for blk in range(partial.shape[0]):
+        total = 0
+        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+            total += degree[i]
+        partial[blk] = total
+
+
+class NeighbourGraph:
+    """Scratch arrays and results of the R-graph metrics for one grid."""
+
+    def __init__(self, grid: CellGrid) -> None:
+        self.grid = grid
+        n = grid.n
+        self.parent = ti.ndarray(ti.i32, n)
+        self.size = ti.ndarray(ti.i32, n)
+        self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
+        self.result = ti.ndarray(ti.i32, 3)
+        self.partial = ti.ndarray(ti.i64, n_blocks(n))
+
+    def compute(self, radius: float, box: float) -> dict[str, float]:
+        """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""
+        g = self.grid.geometry
+        n = self.grid.n
+        _graph(n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
+               self.grid.pos_sorted, self.grid.coords_sorted, self.grid.order, self.parent, self.size,
+               self.degree, self.result)
+        _degree_block_sums(self.degree, n, self.partial)
+        clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())
+        return {
+            "clusters": float(clusters),
+            "largest_cluster": largest / n,
+            "mean_neighbors": float(self.partial.to_numpy().sum()) / n,
+            "max_neighbors": float(max_degree),
+        }

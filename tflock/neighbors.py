@@ -1,0 +1,330 @@
+"""Uniform cell grid for O(N) fixed-radius neighbour search (DESIGN.md section 2).
+
+Agents are counting-sorted by cell: atomic counts, an exclusive prefix sum written here (Taichi's
+``PrefixSumExecutor`` does not run on the CPU backend), a scatter, and an insertion sort of each cell's slice by
+agent index so that the order of neighbours, and hence every floating-point sum over them, does not depend on
+thread timing. A query visits the 3^d cells around an agent's cell.
+
+- periodic / reflecting box: cells of side >= R tile the box (at most ``4 n`` cells); periodic cell indices wrap,
+  and a box with fewer than 3 cells per side visits each distinct cell once.
+- open space: cells of side R are hashed into a table of about 2n buckets; a bucket may hold several cells, so a
+  query keeps only agents whose cell coordinates equal the visited cell (no double counting, no box assumed).
+
+Models loop over neighbours themselves, with the helpers below, inside their own kernels:
+
+    for s in range(n):                      # agents in cell order
+        c = coords_sorted[s]
+        for o in range(span_count(boundary, dim)):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], start[hi]):
+                same = same_cell(coords_sorted, k, cell, boundary, dim)   # 1 when k really is in `cell`
+"""
+
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from tflock.space import OPEN, PERIODIC, boundary_code, displacement
+
+_HASH = (73856093, 19349663, 83492791)
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """Cell layout: side length, cells per side (box modes) and bucket count."""
+
+    dim: int
+    boundary: int
+    cell_size: float
+    cells_per_side: int
+    n_buckets: int
+
+
+def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float) -> GridGeometry:
+    """Choose cells of side >= radius: a tiling of the box, or a hash table of ~2n buckets in open space."""
+    code = boundary_code(boundary)
+    if code == OPEN:
+        n_buckets = 1 << max(4, math.ceil(math.log2(2 * n)))
+        return GridGeometry(dim, code, float(radius), 0, n_buckets)
+    per_side = max(1, int(box // radius))
+    cap = max(64, 4 * n)
+    if per_side**dim > cap:
+        per_side = max(1, int(cap ** (1.0 / dim)))
+    return GridGeometry(dim, code, box / per_side, per_side, per_side**dim)
+
+
+@ti.func
+def cell_coords(p, cell_size, nc, boundary: ti.template()):
+    """Integer cell coordinates of position p (clamped into the box for box boundaries)."""
+    c = ti.Vector([0] * p.n, dt=ti.i32)
+    if ti.static(boundary == OPEN):
+        c = ti.cast(ti.floor(p / cell_size), ti.i32)
+    else:  # coordinates are >= 0: truncation is the floor, and cheaper
+        c = ti.math.clamp(ti.cast(p / cell_size, ti.i32), 0, nc - 1)
+    return c
+
+
+@ti.func
+def bucket_of_cell(c, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
+    """Bucket index of cell c: row-major in a box, a spatial hash in open space."""
+    b = 0
+    if ti.static(boundary == OPEN):
+        h = ti.u32(0)
+        for k in ti.static(range(dim)):
+            h ^= ti.cast(c[k], ti.u32) * ti.u32(_HASH[k])
+        b = ti.cast(h % ti.u32(n_buckets), ti.i32)
+    else:
+        for k in ti.static(range(dim)):
+            b = b * nc + c[dim - 1 - k]
+    return b
+
+
+@ti.func
+def span_count(boundary: ti.template(), dim: ti.template()):
+    """Number of bucket spans a query visits: 2 per stencil row in a box, one per cell (3^dim) in open space."""
+    return ti.static(3**dim if boundary == OPEN else 2 * 3 ** (dim - 1))
+
+
+@ti.func
+def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
+    """The o-th span of buckets [lo, hi) around cell c, and the cell it stands for (open space).
+
+    In a box, buckets are row-major, so the cells x-1..x+1 of a stencil row are one contiguous span of sorted
+    agents (a single loop with no per-cell overhead); at a periodic edge the row wraps into a second span.
+    Periodic rows and columns wrap; a box with fewer than 3 cells per side visits each distinct cell once;
+    reflecting boxes skip rows outside. In open space every span is one hashed cell, filtered by
+    :func:`same_cell`. An empty span has lo == hi.
+    """
+    cell = c
+    lo = 0
+    hi = 0
+    if ti.static(boundary == OPEN):
+        code = o
+        for k in ti.static(range(dim)):
+            cell[k] = c[k] + code % 3 - 1
+            code //= 3
+        lo = bucket_of_cell(cell, nc, n_buckets, boundary, dim)
+        hi = lo + 1
+    else:
+        row = o // 2
+        seg = o % 2
+        ok = True
+        b = 0
+        for k in ti.static(range(dim - 1, 0, -1)):  # row-major: the last axis varies slowest
+            off = (row // 3 ** (k - 1)) % 3 - 1
+            t = c[k] + off
+            if ti.static(boundary == PERIODIC):
+                if nc < 3 and (off < 0 or off >= nc):
+                    ok = False
+                t = (t + nc) % nc
+            elif t < 0 or t >= nc:
+                ok = False
+            b = b * nc + t
+        b *= nc
+        x0 = c[0] - 1
+        x1 = c[0] + 2  # exclusive
+        if ti.static(boundary == PERIODIC):
+            if nc < 3:
+                x0, x1 = 0, nc
+            elif x0 < 0:  # wraps left: [0, 2) then [nc - 1, nc)
+                x0, x1 = ti.select(seg == 0, 0, nc - 1), ti.select(seg == 0, 2, nc)
+                seg = 0
+            elif x1 > nc:  # wraps right: [nc - 2, nc) then [0, 1)
+                x0, x1 = ti.select(seg == 0, nc - 2, 0), ti.select(seg == 0, nc, 1)
+                seg = 0
+        else:
+            x0 = ti.max(x0, 0)
+            x1 = ti.min(x1, nc)
+        if ok and seg == 0:
+            lo = b + x0
+            hi = b + x1
+    return lo, hi, cell
+
+
+@ti.func
+def same_cell(coords_sorted: ti.template(), k, cell, boundary: ti.template(), dim: ti.template()):
+    """1 when sorted agent k lies in `cell` (always 1 in a box, where a bucket is one cell)."""
+    same = 1
+    if ti.static(boundary == OPEN):
+        for d in ti.static(range(dim)):
+            same &= ti.select(coords_sorted[d, k] == cell[d], 1, 0)
+    return same
+
+
+@ti.func
+def load_vec(arr: ti.template(), i, dim: ti.template()):
+    """Column i of a component-major (dim, n) ndarray as a Taichi vector.
+
+    Component-major arrays keep each coordinate contiguous, which lets LLVM vectorise the neighbour loops
+    (measured here: 0.25 ns per pair test against 2.1 ns with (n, dim) rows).
+    """
+    return ti.Vector([arr[d, i] for d in ti.static(range(dim))])
+
+
+@ti.func
+def load_ivec(arr: ti.template(), i, dim: ti.template()):
+    return ti.Vector([arr[d, i] for d in ti.static(range(dim))], dt=ti.i32)
+
+
+@ti.kernel
+def _build(pos: ti.types.ndarray(), n: ti.i32, cell_size: float, nc: ti.i32, n_buckets: ti.i32,
+           boundary: ti.template(), dim: ti.template(),
+           coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
+           start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray()):
+    for b in range(n_buckets):
+        counts[b] = 0
+    for i in range(n):
+        c = cell_coords(load_vec(pos, i, dim), cell_size, nc, boundary)
+        for d in ti.static(range(dim)):
+            coords[d, i] = c[d]
+        b = bucket_of_cell(c, nc, n_buckets, boundary, dim)
+        bucket[i] = b
+        ti.atomic_add(counts[b], 1)
+    # exclusive scan, serial: a few ms for 1e6 buckets on the CPU
+    ti.loop_config(serialize=True)
+    for b in range(n_buckets + 1):
+        if b == 0:
+            start[0] = 0
+        else:
+            start[b] = start[b - 1] + counts[b - 1]
+    for b in range(n_buckets):
+        counts[b] = start[b]  # reused as the scatter cursor
+    for i in range(n):
+        order[ti.atomic_add(counts[bucket[i]], 1)] = i
+    for b in range(n_buckets):  # insertion sort of each bucket by agent index: deterministic neighbour order
+        lo = start[b]
+        for k in range(lo + 1, start[b + 1]):
+            v = order[k]
+            m = k
+            while m > lo and order[m - 1] > v:
+                order[m] = order[m - 1]
+                m -= 1
+            order[m] = v
+    for s in range(n):
+        i = order[s]
+        slot_of[i] = s
+        for d in ti.static(range(dim)):
+            pos_sorted[d, s] = pos[d, i]
+            coords_sorted[d, s] = coords[d, i]
+
+
+class CellGrid:
+    """Cell-sorted view of n agents' positions, rebuilt with :meth:`build` whenever positions change."""
+
+    def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type) -> None:
+        self.n = n
+        self.real = real
+        self.geometry = grid_geometry(n, dim, boundary, box, radius)
+        g = self.geometry
+        ftype = ti.f32 if real == np.float32 else ti.f64
+        self.coords = ti.ndarray(ti.i32, (dim, n))
+        self.bucket = ti.ndarray(ti.i32, n)
+        self.counts = ti.ndarray(ti.i32, g.n_buckets)
+        self.start = ti.ndarray(ti.i32, g.n_buckets + 1)
+        self.order = ti.ndarray(ti.i32, n)
+        self.slot_of = ti.ndarray(ti.i32, n)
+        self.pos_sorted = ti.ndarray(ftype, (dim, n))
+        self.coords_sorted = ti.ndarray(ti.i32, (dim, n))
+
+    def build(self, pos: ti.Ndarray) -> None:
+        """Sort agents by cell from positions `pos`, a component-major (dim, n) ndarray."""
+        g = self.geometry
+        _build(pos, self.n, g.cell_size, g.cells_per_side, g.n_buckets, g.boundary, g.dim,
+               self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
+               self.pos_sorted, self.coords_sorted)
+
+
+@ti.kernel
+def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
+                 radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+                 boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+                 order: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                 coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray()):
+    for m in range(n_sel):
+        counts[m] = 0
+        i = selected_ids[m]
+        s = slot_of[i]
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        for o in range(span_count(boundary, dim)):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], start[hi]):
+                j = order[k]
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
+                if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
+                    counts[m] += 1
+
+
+@ti.kernel
+def _fill_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
+                radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+                boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+                order: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                coords_sorted: ti.types.ndarray(), offsets: ti.types.ndarray(), limit: ti.i32,
+                edges: ti.types.ndarray()):
+    for m in range(n_sel):
+        e = offsets[m]
+        i = selected_ids[m]
+        s = slot_of[i]
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        for o in range(span_count(boundary, dim)):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], start[hi]):
+                j = order[k]
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
+                if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1 and e < limit:
+                    for a in ti.static(range(dim)):
+                        edges[e, 0, a] = p[a]
+                        edges[e, 1, a] = p[a] + d[a]
+                    e += 1
+
+
+class SubsetDrawing:
+    """Fixed subset of agents drawn every frame: their neighbour edges, built on the device.
+
+    Index arrays are uploaded once; each call launches two small kernels over the subset only.
+    """
+
+    def __init__(self, grid: CellGrid, selected_ids: np.ndarray) -> None:
+        self.grid = grid
+        self.selected_ids = np.asarray(selected_ids, dtype=np.int32)
+        m = max(1, len(self.selected_ids))
+        self.ids = ti.ndarray(ti.i32, m)
+        self.mask = ti.ndarray(ti.i32, grid.n)
+        self.counts = ti.ndarray(ti.i32, m)
+        self.offsets = ti.ndarray(ti.i32, m)
+        if len(self.selected_ids):
+            self.ids.from_numpy(np.pad(self.selected_ids, (0, m - len(self.selected_ids))))
+            mask = np.zeros(grid.n, dtype=np.int32)
+            mask[self.selected_ids] = 1
+            self.mask.from_numpy(mask)
+
+    def edges(self, box: float, radius: float, max_edges: int) -> np.ndarray:
+        """Segments (E, 2, dim) from each selected agent to its neighbours, E <= max_edges.
+
+        A pair of two selected agents appears once; the far end uses the minimum image, so edges never span a
+        periodic box. Agents are taken in id order until `max_edges` is reached (deterministic).
+        """
+        g = self.grid.geometry
+        n_sel = len(self.selected_ids)
+        if n_sel == 0 or max_edges == 0:
+            return np.zeros((0, 2, g.dim), dtype=self.grid.real)
+        args = (n_sel, self.ids, self.mask, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
+                g.dim, self.grid.start, self.grid.order, self.grid.slot_of, self.grid.pos_sorted,
+                self.grid.coords_sorted)
+        _count_pairs(*args, self.counts)
+        per_agent = self.counts.to_numpy()[:n_sel]
+        total = int(min(per_agent.sum(), max_edges))
+        if total == 0:
+            return np.zeros((0, 2, g.dim), dtype=self.grid.real)
+        self.offsets.from_numpy(np.concatenate(([0], np.cumsum(per_agent)[:-1])).astype(np.int32))
+        edges = ti.ndarray(self.grid.pos_sorted.dtype, (total, 2, g.dim))
+        _fill_pairs(*args, self.offsets, total, edges)
+        return edges.to_numpy()

@@ -1,0 +1,56 @@
+"""Boundaries of the simulated space: periodic box (minimum image), reflecting box (mirror), open plane/space.
+
+Boundary codes are compile-time constants of the kernels (``ti.template()`` arguments), so each kernel is
+specialised to one boundary and carries no branch on it.
+"""
+
+
+import taichi as ti
+
+PERIODIC = 0
+REFLECTING = 1
+OPEN = 2
+BOUNDARIES = {"periodic": PERIODIC, "reflecting": REFLECTING, "open": OPEN}
+
+
+def boundary_code(name: str) -> int:
+    """The kernel constant for a boundary name."""
+    return BOUNDARIES[name]
+
+
+@ti.func
+def displacement(p, q, box, boundary: ti.template()):
+    """q - p, by the minimum image convention when the box is periodic."""
+    d = q - p
+    if ti.static(boundary == PERIODIC):  # both points lie in [0, box): one image shift at most
+        half = 0.5 * box
+        d = ti.select(d > half, d - box, ti.select(d < -half, d + box, d))
+    return d
+
+
+@ti.func
+def wrap_periodic(p, box):
+    """Coordinates into [0, box) (x == box would put an agent outside the cell grid)."""
+    p -= box * ti.floor(p / box)
+    for k in ti.static(range(p.n)):
+        if p[k] >= box or p[k] < 0:
+            p[k] = 0.0
+    return p
+
+
+@ti.func
+def reflect(p, box):
+    """Mirror coordinates at the walls 0 and box; returns the position and a per-axis 0/1 flip mask.
+
+    A flipped axis means the velocity component along it changes sign (reflection like light on a mirror,
+    Samiloglu et al. 2006 section 5.2). Valid for moves shorter than the box.
+    """
+    flips = ti.Vector([0] * p.n, dt=ti.i32)
+    for k in ti.static(range(p.n)):
+        if p[k] < 0:
+            p[k] = -p[k]
+            flips[k] = 1
+        elif p[k] > box:
+            p[k] = 2 * box - p[k]
+            flips[k] = 1
+    return p, flips
