@@ -1,0 +1,5 @@
+"""python -m tflock."""
+
+from tflock.cli import main
+
+main()
