@@ -1,0 +1,321 @@
+"""Tests for the `tflock` command line, each call in a subprocess (`python -m tflock ...`).
+
+Runs are small (500 agents, a few steps). Every `sim` that gets past config validation pays a few seconds of
+Taichi start-up and compile, so one recorded run is shared by the tests that only read it back, and the
+bad-input cases that fail before Taichi is imported are the cheap majority.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from tflock.record import read_recording, verify_recording
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+REPO = Path(__file__).resolve().parents[1]
+SMALL = ["--set", "params.n=500", "--set", "params.box=15.8"]
+TIMEOUT_S = 120
+
+
+def tflock(*args: str, cwd: Path, timeout: float = TIMEOUT_S) -> subprocess.CompletedProcess[str]:
+    """Run `python -m tflock ARGS` in `cwd`, capturing stdout and stderr as text."""
+    return subprocess.run(
+        [sys.executable, "-m", "tflock", *args],
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+def describe(result: subprocess.CompletedProcess[str]) -> str:
+    return f"exit {result.returncode}\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> str:
+    """Exit code 2, exactly one non-empty line on stderr containing every needle, and no traceback."""
+    assert result.returncode == 2, describe(result)
+    assert "Traceback" not in result.stderr + result.stdout, describe(result)
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].strip(), describe(result)
+    for needle in needles:
+        assert needle in lines[0], f"{needle!r} not in the error line {lines[0]!r}"
+    return lines[0]
+
+
+def csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as file:
+        return list(csv.DictReader(file))
+
+
+def has_gpu() -> bool:
+    return Path("/dev/nvidia0").exists() or shutil.which("nvidia-smi") is not None
+
+
+# ----------------------------------------------------------------------------------------------------------
+# One shared recorded run: `tflock sim` with the defaults except a small N, no --out.
+
+
+@dataclass
+class Run:
+    cwd: Path
+    steps: int
+    result: subprocess.CompletedProcess[str]
+
+
+DEFAULT_STEPS = 5
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    cwd = tmp_path_factory.mktemp("default-run")
+    result = tflock("sim", *SMALL, "--steps", str(DEFAULT_STEPS), cwd=cwd)
+    return Run(cwd=cwd, steps=DEFAULT_STEPS, result=result)
+
+
+@pytest.fixture(scope="module")
+def default_rrd(default_run: Run) -> Path:
+    assert default_run.result.returncode == 0, describe(default_run.result)
+    found = sorted((default_run.cwd / "recordings").glob("vicsek-*.rrd"))
+    assert len(found) == 1, f"expected one recordings/vicsek-*.rrd, found {found}"
+    return found[0]
+
+
+def test_default_run_records_under_recordings(default_run: Run, default_rrd: Path) -> None:
+    result = default_run.result
+    assert "Traceback" not in result.stderr, describe(result)
+    tables = sorted((default_run.cwd / "recordings").glob("vicsek-*.metrics.csv"))
+    assert tables == [default_rrd.with_suffix(".metrics.csv")]
+    assert sorted(p.name for p in default_run.cwd.iterdir()) == ["recordings"]
+
+    assert verify_recording(default_rrd)
+    summary = read_recording(default_rrd)
+    assert summary.model == "vicsek"
+    assert summary.frames == default_run.steps + 1  # step 0, then every step (log.every = 1)
+    assert summary.steps == list(range(default_run.steps + 1))
+    assert "polarization" in summary.final_metrics
+
+    rows = csv_rows(tables[0])
+    assert len(rows) == default_run.steps + 1
+    assert [int(row["step"]) for row in rows] == list(range(default_run.steps + 1))
+    assert "polarization" in rows[0]
+
+    assert "steps/s" in result.stdout
+    relative = default_rrd.relative_to(default_run.cwd).as_posix()
+    assert relative in result.stdout, describe(result)
+    assert f"{DEFAULT_STEPS} of {DEFAULT_STEPS} steps" in result.stdout
+
+
+def test_summary_names_the_cpu_engine_and_its_threads(default_run: Run) -> None:
+    engine_line = next(line for line in default_run.result.stdout.splitlines() if " engine " in line)
+    assert f"cpu, {os.cpu_count()} threads" in engine_line
+
+
+def test_out_path_is_honoured_and_log_every_thins_frames(tmp_path: Path) -> None:
+    result = tflock("sim", *SMALL, "--steps", "20", "--set", "log.every=5", "--out", "runs/every5.rrd",
+                    cwd=tmp_path)
+    assert result.returncode == 0, describe(result)
+    rrd = tmp_path / "runs" / "every5.rrd"
+    table = tmp_path / "runs" / "every5.metrics.csv"
+    assert rrd.is_file() and table.is_file()
+    assert not (tmp_path / "recordings").exists()
+    assert "runs/every5.rrd" in result.stdout
+
+    assert verify_recording(rrd)
+    summary = read_recording(rrd)
+    assert summary.model == "vicsek"
+    assert summary.steps == [0, 5, 10, 15, 20]
+    assert summary.frames == 5
+    assert len(csv_rows(table)) == 21  # metrics still every step (log.metrics_every = 1)
+
+
+def test_no_log_writes_no_file(tmp_path: Path) -> None:
+    result = tflock("sim", *SMALL, "--steps", "2", "--no-log", cwd=tmp_path)
+    assert result.returncode == 0, describe(result)
+    assert list(tmp_path.rglob("*")) == []
+    assert "steps/s" in result.stdout
+    assert "wrote" not in result.stdout
+
+
+# ----------------------------------------------------------------------------------------------------------
+# inspect, models, config show, help
+
+
+def test_inspect_prints_model_frames_metrics_and_config(default_run: Run, default_rrd: Path) -> None:
+    relative = default_rrd.relative_to(default_run.cwd).as_posix()
+    result = tflock("inspect", relative, cwd=default_run.cwd)
+    assert result.returncode == 0, describe(result)
+    out = result.stdout
+    assert relative in out
+    assert "model: vicsek" in out
+    assert f"frames: {DEFAULT_STEPS + 1}" in out
+    assert f"steps 0 to {DEFAULT_STEPS}" in out
+    polarization = f"{read_recording(default_rrd).final_metrics['polarization']:.6g}"
+    assert re.search(rf"polarization\s.*{re.escape(polarization)}", out), out
+    assert re.search(r"^n = 500$", out, re.MULTILINE), out
+    assert re.search(rf"^steps = {DEFAULT_STEPS}$", out, re.MULTILINE), out
+    assert result.stderr == ""
+
+
+@pytest.mark.parametrize("kind", ["missing", "text"])
+def test_inspect_rejects_missing_and_non_rrd_files(tmp_path: Path, kind: str) -> None:
+    if kind == "text":
+        (tmp_path / "notes.txt").write_text("not a recording\n" * 50, encoding="utf-8")
+        name = "notes.txt"
+    else:
+        name = "nope.rrd"
+    assert_one_line_error(tflock("inspect", name, cwd=tmp_path), name)
+
+
+def test_models_lists_vicsek(tmp_path: Path) -> None:
+    result = tflock("models", cwd=tmp_path)
+    assert result.returncode == 0, describe(result)
+    assert re.search(r"^vicsek\b", result.stdout, re.MULTILINE), result.stdout
+
+
+def test_config_show_is_the_repo_config(tmp_path: Path) -> None:
+    result = tflock("config", "show", "vicsek", cwd=tmp_path)
+    assert result.returncode == 0, describe(result)
+    repo_text = (REPO / "configs" / "vicsek.toml").read_text(encoding="utf-8")
+    parsed = tomllib.loads(result.stdout)
+    assert parsed["model"] == "vicsek"
+    assert parsed == tomllib.loads(repo_text)
+    assert result.stdout == repo_text
+
+
+def test_config_show_unknown_model(tmp_path: Path) -> None:
+    assert_one_line_error(tflock("config", "show", "nosuch", cwd=tmp_path), "model", "nosuch", "vicsek")
+
+
+@pytest.mark.parametrize("args", [["--help"], ["sim", "--help"]], ids=["main", "sim"])
+def test_help(tmp_path: Path, args: list[str]) -> None:
+    result = tflock(*args, cwd=tmp_path)
+    assert result.returncode == 0, describe(result)
+    assert "Usage" in result.stdout
+    assert ("--set" if args[0] == "sim" else "sim") in result.stdout
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Bad input: exit 2, one line on stderr naming the key, no traceback.
+
+UNKNOWN_TOP_LEVEL = 'model = "vicsek"\nsteps = 3\nbogus_key = 1\n'
+INVALID_TOML = 'model = "vicsek\n[params\nn = 500\n'
+
+BAD_INPUT = [
+    pytest.param(["--set", "params.nosie=1"], ["params.nosie", "unknown key", "noise"], id="unknown-key"),
+    pytest.param(["--config", "unknown.toml"], ["bogus_key", "unknown key"], id="unknown-top-level-key-in-file"),
+    pytest.param(["--set", "params.n=abc"], ["params.n", "integer", "abc"], id="wrong-type"),
+    pytest.param(["--set", "params.n=0"], ["params.n", "must be > 0", "got 0"], id="n-zero"),
+    pytest.param(["--set", "params.n=-3"], ["params.n", "must be > 0", "-3"], id="n-negative"),
+    pytest.param(["--set", "params.radius=-1"], ["params.radius", "must be > 0", "-1"], id="radius-negative"),
+    pytest.param(["--set", "params.rule=laplacian", "--set", "params.g=10", "--set", "params.n=500"],
+                 ["params.g", "> params.n", "500", "laplacian", "10"], id="laplacian-g-le-n"),
+    pytest.param(["--config", "nope.toml"], ["nope.toml", "not found"], id="missing-config-file"),
+    pytest.param(["--config", "invalid.toml"], ["invalid.toml", "invalid TOML"], id="invalid-toml"),
+    pytest.param(["--out", "x.txt"], ["--out", "x.txt", ".rrd"], id="out-not-rrd"),
+    pytest.param(["--arch", "tpu"], ["engine.arch", "tpu", "cpu, cuda, vulkan, auto"], id="unknown-arch"),
+    pytest.param(["--steps", "-1"], ["steps", "must be >= 0", "-1"], id="steps-negative"),
+    pytest.param(["--set", "params"], ["--set", "key=value", "params"], id="set-without-value"),
+    pytest.param(["--model", "nosuch"], ["model", "nosuch", "vicsek"], id="unknown-model"),
+]
+
+
+@pytest.mark.parametrize(("args", "needles"), BAD_INPUT)
+def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needles: list[str]) -> None:
+    (tmp_path / "unknown.toml").write_text(UNKNOWN_TOP_LEVEL, encoding="utf-8")
+    (tmp_path / "invalid.toml").write_text(INVALID_TOML, encoding="utf-8")
+    result = tflock("sim", *SMALL, "--steps", "3", *args, cwd=tmp_path)
+    assert_one_line_error(result, *needles)
+    assert not (tmp_path / "recordings").exists()
+    assert not (tmp_path / "x.txt").exists()
+
+
+@pytest.mark.parametrize("where", ["proc", "under-a-file"])
+def test_unwritable_output_is_one_line_exit_2(tmp_path: Path, where: str) -> None:
+    if where == "proc":
+        out = "/proc/forbidden/x.rrd"
+    else:
+        (tmp_path / "afile").write_text("a regular file\n", encoding="utf-8")
+        out = "afile/x.rrd"
+    result = tflock("sim", *SMALL, "--steps", "2", "--out", out, cwd=tmp_path)
+    assert_one_line_error(result, out, "cannot write")
+    assert not (tmp_path / "recordings").exists()
+
+
+@pytest.fixture(scope="module")
+def cuda_result(tmp_path_factory: pytest.TempPathFactory) -> subprocess.CompletedProcess[str]:
+    if has_gpu():
+        pytest.skip("this machine has an NVIDIA GPU; --arch cuda would run")
+    return tflock("sim", *SMALL, "--steps", "2", "--arch", "cuda", cwd=tmp_path_factory.mktemp("cuda"))
+
+
+def test_arch_cuda_without_gpu_fails_cleanly(cuda_result: subprocess.CompletedProcess[str]) -> None:
+    assert cuda_result.returncode == 2, describe(cuda_result)
+    assert "Traceback" not in cuda_result.stderr + cuda_result.stdout, describe(cuda_result)
+    last = cuda_result.stderr.splitlines()[-1]
+    assert "engine.arch" in last and "cuda" in last, describe(cuda_result)
+
+
+def test_arch_cuda_without_gpu_is_one_line(cuda_result: subprocess.CompletedProcess[str]) -> None:
+    assert_one_line_error(cuda_result, "engine.arch", "cuda")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Ctrl-C and SIGTERM: exit 130 with a complete recording.
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_interrupt_exits_130_with_a_complete_recording(tmp_path: Path, sig: signal.Signals) -> None:
+    rrd = tmp_path / "long.rrd"
+    table = tmp_path / "long.metrics.csv"
+    with open(tmp_path / "stdout.txt", "w") as stdout, open(tmp_path / "stderr.txt", "w") as stderr:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "tflock", "sim", *SMALL, "--steps", "1000000", "--out", rrd.name],
+            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr,
+        )
+        try:
+            deadline = time.monotonic() + 60
+            while True:  # past 50 kB (frame 0) and at least two metric rows: the step loop is running
+                if rrd.is_file() and rrd.stat().st_size > 50_000 and table.is_file() and \
+                        table.read_text(encoding="utf-8").count("\n") >= 3:
+                    break
+                assert proc.poll() is None, f"sim exited early with {proc.returncode}: " + \
+                    (tmp_path / "stderr.txt").read_text()
+                assert time.monotonic() < deadline, "the recording did not grow past 50 kB within 60 s"
+                time.sleep(0.1)
+            proc.send_signal(sig)
+            returncode = proc.wait(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    out = (tmp_path / "stdout.txt").read_text()
+    err = (tmp_path / "stderr.txt").read_text()
+    assert returncode == 130, f"exit {returncode}\n{out}\n{err}"
+    assert "Traceback" not in err, err
+    assert "(interrupted)" in out, out
+    assert verify_recording(rrd)
+    summary = read_recording(rrd)
+    assert summary.model == "vicsek"
+    assert summary.frames >= 1
+    assert summary.steps[0] == 0
+    rows = csv_rows(table)
+    assert len(rows) >= 1
+    assert [int(row["step"]) for row in rows] == list(range(len(rows)))

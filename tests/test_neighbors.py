@@ -1,0 +1,74 @@
+"""The cell grid finds exactly the brute-force neighbours, for every boundary and awkward geometry."""
+
+import numpy as np
+import pytest
+
+from tflock import reference as ref
+from tflock.config import load_config
+from tflock.models.vicsek import Vicsek
+
+
+def model_at(engine, x, boundary, box, radius):
+    cfg = load_config(overrides={"params.n": len(x), "params.box": box, "params.radius": radius,
+                                 "params.boundary": boundary, "params.speed": 0.0,
+                                 "engine.precision": engine.precision})
+    model = Vicsek(cfg.params, 0, engine)
+    model.set_state({"x": x, "theta": np.zeros(len(x))}, 0)
+    return model
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting", "open"])
+@pytest.mark.parametrize("box,radius", [(10.0, 1.0), (10.0, 4.0), (10.0, 6.0), (3.0, 1.0), (50.0, 0.7)])
+def test_degrees_match_brute_force(engine, boundary, box, radius):
+    rng = np.random.default_rng(int(box * 10 + radius))
+    x = rng.random((300, 2)) * box
+    model = model_at(engine, x, boundary, box, radius)
+    model.metrics()
+    expected = ref.adjacency(x.astype(engine.real), radius, boundary, box).sum(axis=1)
+    assert np.array_equal(model.graph.degree.to_numpy(), expected)
+
+
+def test_open_space_far_apart_groups(engine):
+    """Open space assumes no box: groups 1e6 units apart are found, and never mixed by the hash."""
+    rng = np.random.default_rng(0)
+    centres = np.array([[0.0, 0.0], [1e6, 0.0], [-1e6, 5e5], [3e5, -2e6]])
+    x = np.concatenate([c + rng.random((50, 2)) for c in centres])
+    model = model_at(engine, x, "open", 1.0, 1.0)
+    m = model.metrics()
+    expected = ref.graph_metrics(x, 1.0, "open", 1.0)
+    assert m["clusters"] == expected["clusters"]
+    assert m["mean_neighbors"] == pytest.approx(expected["mean_neighbors"])
+
+
+def test_clusters_on_hand_built_configurations(engine):
+    # three separate chains of 10, 5 and 1 agents, spacing 0.9 < R = 1
+    chain = lambda start, k: np.array([[start + 0.9 * i, 2.0] for i in range(k)])  # noqa: E731
+    x = np.concatenate([chain(0.5, 10), chain(15.0, 5), chain(25.0, 1)])
+    m = model_at(engine, x, "reflecting", 30.0, 1.0).metrics()
+    assert m["clusters"] == 3
+    assert m["largest_cluster"] == pytest.approx(10 / 16)
+    assert m["max_neighbors"] == 2
+    # a ring of agents that closes only through the periodic boundary is one cluster, not two
+    x = np.array([[0.2 + 0.9 * i, 1.0] for i in range(11)])  # last one at 9.2, first at 0.2: gap 1.0 via the wrap
+    assert model_at(engine, x, "periodic", 10.0, 1.0).metrics()["clusters"] == 1
+    assert model_at(engine, x, "reflecting", 10.0, 1.0).metrics()["clusters"] == 1
+    x[5:, 0] += 0.15  # break the chain in the middle: periodic still one cluster? no: two breaks needed
+    assert model_at(engine, x, "periodic", 10.0, 1.0).metrics()["clusters"] == 1
+    assert model_at(engine, x, "reflecting", 10.0, 1.0).metrics()["clusters"] == 2
+
+
+def test_edges_are_neighbour_pairs(engine):
+    rng = np.random.default_rng(1)
+    x = rng.random((200, 2)) * 8.0
+    model = model_at(engine, x, "periodic", 8.0, 1.0)
+    selected = np.arange(0, 200, 2)
+    frame = model.frame(selected, max_edges=100000)
+    a = ref.adjacency(x.astype(engine.real), 1.0, "periodic", 8.0)
+    sel = np.zeros(200, bool)
+    sel[selected] = True
+    # each selected agent's neighbours, pairs of two selected agents once
+    expected = sum(int(a[i].sum()) - int((a[i] & sel & (np.arange(200) < i)).sum()) for i in selected)
+    assert len(frame.edges) == expected
+    lengths = np.linalg.norm(frame.edges[:, 1] - frame.edges[:, 0], axis=1)
+    assert lengths.max() <= 1.0 + 1e-5  # minimum image: no edge spans the box
+    assert len(model.frame(selected, max_edges=10).edges) == 10

@@ -1,0 +1,122 @@
+"""Kernels against the NumPy reference, from the same state and the same random draws.
+
+Two horizons (the dynamics are chaotic: rounding differences grow step by step):
+- one step at a time from a shared state (the kernel is reset to the reference state before every step), for
+  40 steps: isolates the step itself; tolerance 1e-10 at f64, 2e-4 rad / 2e-4 length at f32 (one f32 rounding of
+  sums over tens of neighbours plus f32 trig);
+- free-running trajectories (f64 only), 150 steps: the kernel and the oracle must stay within 1e-8 over a horizon
+  long enough to cover many neighbourhood changes and, for reflecting boxes, many wall hits.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import PRECISION
+
+from tflock import reference as ref
+from tflock.config import load_config
+from tflock.models.vicsek import Vicsek
+
+F64 = PRECISION == "f64"
+TOL = 1e-10 if F64 else 2e-4
+
+RULES = ["vector", "average", "relative", "laplacian"]
+BOUNDARIES = ["periodic", "reflecting", "open"]
+
+
+def vicsek_config(rule, boundary, n=400, box=12.0, **extra):
+    ov = {"params.n": n, "params.box": box, "params.radius": 1.0, "params.speed": 0.3, "params.noise": 0.6,
+          "params.rule": rule, "params.boundary": boundary, "seed": 7, "engine.precision": PRECISION}
+    if rule == "laplacian":
+        ov["params.g"] = n + 1.5
+    ov.update(extra)
+    return load_config(overrides=ov)
+
+
+def heading_gap(a, b):
+    return float(np.abs(ref.wrap_pi(a.astype(np.float64) - b.astype(np.float64))).max())
+
+
+def position_gap(a, b, boundary, box):
+    d = np.abs(a.astype(np.float64) - b.astype(np.float64))
+    if boundary == "periodic":
+        d = np.minimum(d, box - d)
+    return float(d.max())
+
+
+def step_by_step(cfg, engine, steps=40):
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    state = model.state()
+    for t in range(steps):
+        expected_x, expected_theta = ref.vicsek_step(state["x"], state["theta"], t, cfg.params, cfg.seed)
+        model.set_state(state, t)
+        model.advance(1)
+        got = model.state()
+        assert heading_gap(got["theta"], expected_theta) < TOL, f"theta differs at step {t}"
+        assert position_gap(got["x"], expected_x, cfg.params.boundary, cfg.params.box) < TOL, f"x at step {t}"
+        state = {"x": expected_x, "theta": expected_theta}
+    return model
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+@pytest.mark.parametrize("rule", RULES)
+def test_step_matches_reference(engine, rule, boundary):
+    step_by_step(vicsek_config(rule, boundary), engine)
+
+
+@pytest.mark.parametrize("case", ["leader", "turn_limit", "leader_turn_limit_reflecting", "dense", "sparse_grid"])
+def test_step_matches_reference_variants(engine, case):
+    extra = {
+        "leader": {"params.leader.enabled": True, "params.leader.heading_deg": 30.0},
+        "turn_limit": {"params.max_turn_deg": 7.0},
+        "leader_turn_limit_reflecting": {"params.leader.enabled": True, "params.max_turn_deg": 12.0},
+        "dense": {"params.radius": 2.5},  # ~60 neighbours each
+        "sparse_grid": {"params.radius": 5.0},  # 2 cells per side: the periodic stencil must not visit a cell twice
+    }[case]
+    boundary = "reflecting" if "reflecting" in case else "periodic"
+    rule = "average" if case == "leader" else "vector"
+    step_by_step(vicsek_config(rule, boundary, **extra), engine)
+
+
+@pytest.mark.skipif(not F64, reason="long free-running horizons are compared at f64 only (f32 drifts chaotically)")
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+@pytest.mark.parametrize("rule", RULES)
+def test_trajectory_matches_reference(engine, rule, boundary):
+    cfg = vicsek_config(rule, boundary, n=300)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    x, theta = model.state()["x"], model.state()["theta"]
+    model.advance(150)
+    for t in range(150):
+        x, theta = ref.vicsek_step(x, theta, t, cfg.params, cfg.seed)
+    got = model.state()
+    assert heading_gap(got["theta"], theta) < 1e-8
+    assert position_gap(got["x"], x, boundary, cfg.params.box) < 1e-8
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_metrics_match_reference(engine, boundary):
+    cfg = vicsek_config("vector", boundary, n=600, box=14.0, **{"params.leader.enabled": True})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    model.advance(25)
+    state = model.state()
+    got = model.metrics()
+    expected = ref.vicsek_metrics(state["x"], state["theta"], cfg.params)
+    assert set(got) == set(expected)
+    for name in ("clusters", "max_neighbors"):
+        assert got[name] == expected[name], name
+    for name in ("largest_cluster", "mean_neighbors"):
+        assert got[name] == pytest.approx(expected[name], abs=1e-12), name
+    for name in ("polarization", "leader_error"):
+        assert got[name] == pytest.approx(expected[name], abs=1e-5), name
+    assert math.cos(got["mean_heading"] - expected["mean_heading"]) == pytest.approx(1.0, abs=1e-8)
+
+
+def test_initial_state_is_the_documented_draw(engine):
+    cfg = vicsek_config("vector", "periodic", n=50)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    from tflock.rng import Stream, uniform_np
+
+    ids = np.arange(50)
+    assert np.allclose(model.state()["x"][:, 0], 12.0 * uniform_np(7, 0, ids, Stream.INIT_X), atol=1e-5)
+    assert np.allclose(model.state()["theta"], 2 * np.pi * uniform_np(7, 0, ids, Stream.INIT_HEADING), atol=1e-5)
