@@ -89,7 +89,7 @@ def _union(parent: ti.template(), a, z):
 @ti.kernel
 def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
            boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), order: ti.types.ndarray(),
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
            parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
            result: ti.types.ndarray()):
     for s in range(n):
@@ -99,7 +99,7 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
         count = 0
-        for o in range(span_count(boundary, dim)):
+        for o in ti.static(range(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
@@ -107,12 +107,12 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                 if ti.static(boundary == OPEN):
                     w *= same_cell(coords_sorted, k, cell, boundary, dim)
                 count += w
-        degree[order[s]] = count
+        degree[id_sorted[s]] = count
     for s in range(n):  # union(s, k) for every neighbour k < s
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
         root = s  # a recent root of s's set: saves walking s's chain for every neighbour
-        for o in range(span_count(boundary, dim)):
+        for o in ti.static(range(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], ti.min(start[hi], s)):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
@@ -158,7 +158,7 @@ class NeighbourGraph:
         g = self.grid.geometry
         n = self.grid.n
         _graph(n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
-               self.grid.pos_sorted, self.grid.coords_sorted, self.grid.order, self.parent, self.size,
+               self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent, self.size,
                self.degree, self.result)
         _degree_block_sums(self.degree, n, self.partial)
         clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())

@@ -14,7 +14,7 @@ Models loop over neighbours themselves, with the helpers below, inside their own
 
     for s in range(n):                      # agents in cell order
         c = coords_sorted[s]
-        for o in range(span_count(boundary, dim)):
+        for o in ti.static(range(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
                 same = same_cell(coords_sorted, k, cell, boundary, dim)   # 1 when k really is in `cell`
@@ -82,14 +82,16 @@ def bucket_of_cell(c, nc, n_buckets, boundary: ti.template(), dim: ti.template()
     return b
 
 
-@ti.func
-def span_count(boundary: ti.template(), dim: ti.template()):
-    """Number of bucket spans a query visits: 2 per stencil row in a box, one per cell (3^dim) in open space."""
-    return ti.static(3**dim if boundary == OPEN else 2 * 3 ** (dim - 1))
+def span_count(boundary: int, dim: int) -> int:
+    """Number of bucket spans a query visits: 2 per stencil row in a box, one per cell (3^dim) in open space.
+
+    Kernels unroll the span loop: ``for o in ti.static(range(span_count(boundary, dim)))``.
+    """
+    return 3**dim if boundary == OPEN else 2 * 3 ** (dim - 1)
 
 
 @ti.func
-def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
+def stencil_span(c, o: ti.template(), nc, n_buckets, boundary: ti.template(), dim: ti.template()):
     """The o-th span of buckets [lo, hi) around cell c, and the cell it stands for (open space).
 
     In a box, buckets are row-major, so the cells x-1..x+1 of a stencil row are one contiguous span of sorted
@@ -102,43 +104,47 @@ def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template(
     lo = 0
     hi = 0
     if ti.static(boundary == OPEN):
-        code = o
         for k in ti.static(range(dim)):
-            cell[k] = c[k] + code % 3 - 1
-            code //= 3
+            cell[k] = c[k] + ti.static((o // 3**k) % 3 - 1)
         lo = bucket_of_cell(cell, nc, n_buckets, boundary, dim)
         hi = lo + 1
     else:
-        row = o // 2
-        seg = o % 2
+        row = ti.static(o // 2)  # o is a compile-time constant (callers unroll the span loop): no division
+        seg = ti.static(o % 2)
         ok = True
         b = 0
         for k in ti.static(range(dim - 1, 0, -1)):  # row-major: the last axis varies slowest
-            off = (row // 3 ** (k - 1)) % 3 - 1
+            off = ti.static((row // 3 ** (k - 1)) % 3 - 1)
             t = c[k] + off
             if ti.static(boundary == PERIODIC):
                 if nc < 3 and (off < 0 or off >= nc):
                     ok = False
-                t = (t + nc) % nc
+                if t < 0:
+                    t += nc
+                elif t >= nc:
+                    t -= nc
             elif t < 0 or t >= nc:
                 ok = False
             b = b * nc + t
         b *= nc
         x0 = c[0] - 1
         x1 = c[0] + 2  # exclusive
+        first = True
+        if ti.static(seg == 1):
+            first = False
         if ti.static(boundary == PERIODIC):
             if nc < 3:
                 x0, x1 = 0, nc
             elif x0 < 0:  # wraps left: [0, 2) then [nc - 1, nc)
-                x0, x1 = ti.select(seg == 0, 0, nc - 1), ti.select(seg == 0, 2, nc)
-                seg = 0
+                x0, x1 = ti.select(first, 0, nc - 1), ti.select(first, 2, nc)
+                first = True
             elif x1 > nc:  # wraps right: [nc - 2, nc) then [0, 1)
-                x0, x1 = ti.select(seg == 0, nc - 2, 0), ti.select(seg == 0, nc, 1)
-                seg = 0
+                x0, x1 = ti.select(first, nc - 2, 0), ti.select(first, nc, 1)
+                first = True
         else:
             x0 = ti.max(x0, 0)
             x1 = ti.min(x1, nc)
-        if ok and seg == 0:
+        if ok and first:
             lo = b + x0
             hi = b + x1
     return lo, hi, cell
@@ -170,19 +176,19 @@ def load_ivec(arr: ti.template(), i, dim: ti.template()):
 
 
 @ti.kernel
-def _build(pos: ti.types.ndarray(), n: ti.i32, cell_size: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(),
+def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, cell_size: float, nc: ti.i32,
+           n_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray()):
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray()):
     for b in range(n_buckets):
         counts[b] = 0
-    for i in range(n):
-        c = cell_coords(load_vec(pos, i, dim), cell_size, nc, boundary)
+    for e in range(n):
+        c = cell_coords(load_vec(pos, e, dim), cell_size, nc, boundary)
         for d in ti.static(range(dim)):
-            coords[d, i] = c[d]
+            coords[d, e] = c[d]
         b = bucket_of_cell(c, nc, n_buckets, boundary, dim)
-        bucket[i] = b
+        bucket[e] = b
         ti.atomic_add(counts[b], 1)
     # exclusive scan, serial: a few ms for 1e6 buckets on the CPU
     ti.loop_config(serialize=True)
@@ -193,27 +199,36 @@ def _build(pos: ti.types.ndarray(), n: ti.i32, cell_size: float, nc: ti.i32, n_b
             start[b] = start[b - 1] + counts[b - 1]
     for b in range(n_buckets):
         counts[b] = start[b]  # reused as the scatter cursor
-    for i in range(n):
-        order[ti.atomic_add(counts[bucket[i]], 1)] = i
-    for b in range(n_buckets):  # insertion sort of each bucket by agent index: deterministic neighbour order
+    for e in range(n):
+        order[ti.atomic_add(counts[bucket[e]], 1)] = e
+    for b in range(n_buckets):  # insertion sort of each bucket by agent id: deterministic neighbour order
         lo = start[b]
         for k in range(lo + 1, start[b + 1]):
             v = order[k]
+            key = ids[v]
             m = k
-            while m > lo and order[m - 1] > v:
+            while m > lo and ids[order[m - 1]] > key:
                 order[m] = order[m - 1]
                 m -= 1
             order[m] = v
     for s in range(n):
-        i = order[s]
-        slot_of[i] = s
+        e = order[s]
+        a = ids[e]
+        id_sorted[s] = a
+        slot_of[a] = s
         for d in ti.static(range(dim)):
-            pos_sorted[d, s] = pos[d, i]
-            coords_sorted[d, s] = coords[d, i]
+            pos_sorted[d, s] = pos[d, e]
+            coords_sorted[d, s] = coords[d, e]
 
 
 class CellGrid:
-    """Cell-sorted view of n agents' positions, rebuilt with :meth:`build` whenever positions change."""
+    """Cell-sorted view of n agents' positions, rebuilt with :meth:`build` whenever positions change.
+
+    Models may keep their state in any arrangement of the agents (tflock's models keep it in the cell order of
+    the previous step, so this build reads and writes nearly sequentially); ``ids`` names the agent stored at
+    each element. After a build: ``order[s]`` is the element at sorted slot s, ``id_sorted[s]`` its agent id,
+    ``slot_of[agent]`` the agent's slot, and ``pos_sorted`` / ``coords_sorted`` are in slot order.
+    """
 
     def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type) -> None:
         self.n = n
@@ -227,22 +242,23 @@ class CellGrid:
         self.start = ti.ndarray(ti.i32, g.n_buckets + 1)
         self.order = ti.ndarray(ti.i32, n)
         self.slot_of = ti.ndarray(ti.i32, n)
+        self.id_sorted = ti.ndarray(ti.i32, n)
         self.pos_sorted = ti.ndarray(ftype, (dim, n))
         self.coords_sorted = ti.ndarray(ti.i32, (dim, n))
 
-    def build(self, pos: ti.Ndarray) -> None:
-        """Sort agents by cell from positions `pos`, a component-major (dim, n) ndarray."""
+    def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
+        """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
         g = self.geometry
-        _build(pos, self.n, g.cell_size, g.cells_per_side, g.n_buckets, g.boundary, g.dim,
+        _build(pos, ids, self.n, g.cell_size, g.cells_per_side, g.n_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted)
+               self.pos_sorted, self.coords_sorted, self.id_sorted)
 
 
 @ti.kernel
 def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
                  radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                  boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-                 order: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                 id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
                  coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray()):
     for m in range(n_sel):
         counts[m] = 0
@@ -250,10 +266,10 @@ def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.t
         s = slot_of[i]
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
-        for o in range(span_count(boundary, dim)):
+        for o in ti.static(range(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
-                j = order[k]
+                j = id_sorted[k]
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
                 if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
@@ -264,7 +280,7 @@ def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.t
 def _fill_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
                 radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                 boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-                order: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
                 coords_sorted: ti.types.ndarray(), offsets: ti.types.ndarray(), limit: ti.i32,
                 edges: ti.types.ndarray()):
     for m in range(n_sel):
@@ -273,10 +289,10 @@ def _fill_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.ty
         s = slot_of[i]
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
-        for o in range(span_count(boundary, dim)):
+        for o in ti.static(range(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
-                j = order[k]
+                j = id_sorted[k]
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
                 if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1 and e < limit:
@@ -317,7 +333,7 @@ class SubsetDrawing:
         if n_sel == 0 or max_edges == 0:
             return np.zeros((0, 2, g.dim), dtype=self.grid.real)
         args = (n_sel, self.ids, self.mask, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
-                g.dim, self.grid.start, self.grid.order, self.grid.slot_of, self.grid.pos_sorted,
+                g.dim, self.grid.start, self.grid.id_sorted, self.grid.slot_of, self.grid.pos_sorted,
                 self.grid.coords_sorted)
         _count_pairs(*args, self.counts)
         per_agent = self.counts.to_numpy()[:n_sel]

@@ -5,7 +5,6 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping
 
 import numpy as np
-import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.record import Frame, WorldSpec
@@ -52,31 +51,3 @@ class Model(ABC):
     @abstractmethod
     def world(self) -> WorldSpec:
         """Geometry of the world for the recorder."""
-
-
-@ti.kernel
-def _gather_rows(src: ti.types.ndarray(), ids: ti.types.ndarray(), m: ti.i32, out: ti.types.ndarray()):
-    for r, d in ti.ndrange(m, out.shape[1]):
-        out[r, d] = src[d, ids[r]]
-
-
-@ti.kernel
-def _gather(src: ti.types.ndarray(), ids: ti.types.ndarray(), m: ti.i32, out: ti.types.ndarray()):
-    for r in range(m):
-        out[r] = src[ids[r]]
-
-
-def gather(src: ti.Ndarray, ids: ti.Ndarray, m: int, real: type) -> np.ndarray:
-    """src[ids[:m]] for an (n,) ndarray, without copying all of it to the host."""
-    out = ti.ndarray(ti.f32 if real == np.float32 else ti.f64, max(1, m))
-    if m:
-        _gather(src, ids, m, out)
-    return out.to_numpy()[:m]
-
-
-def gather_rows(src: ti.Ndarray, ids: ti.Ndarray, m: int, real: type) -> np.ndarray:
-    """Columns ids[:m] of a component-major (k, n) ndarray as (m, k) rows, without copying all of it to the host."""
-    out = ti.ndarray(ti.f32 if real == np.float32 else ti.f64, (max(1, m), src.shape[0]))
-    if m:
-        _gather_rows(src, ids, m, out)
-    return out.to_numpy()[:m]

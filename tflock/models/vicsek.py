@@ -33,7 +33,7 @@ import taichi as ti
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
 from tflock.metrics import NeighbourGraph, heading_order
-from tflock.models.base import Model, gather, gather_rows
+from tflock.models.base import Model
 from tflock.neighbors import (
     CellGrid,
     SubsetDrawing,
@@ -83,23 +83,23 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
           max_turn: float, inv_g: float,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(),
           nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
-          pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
-          payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray()):
+          id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+          payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray()):
     for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
         th = theta[order[s]]
         payload[0, s] = ti.cos(th)
         payload[1, s] = ti.sin(th)
         payload[2, s] = th
     r2 = radius * radius
-    for s in range(n):
-        i = order[s]
+    for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
+        i = id_sorted[s]
         p = load_vec(pos_sorted, s, 2)
         c = load_ivec(coords_sorted, s, 2)
         th_i = payload[2, s]
         acc_a = 0.0
         acc_b = 0.0
         count = 0.0
-        for o in range(span_count(boundary, 2)):
+        for o in ti.static(range(span_count(boundary, 2))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
             for k in range(start[lo], start[hi]):
                 d = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
@@ -138,13 +138,29 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
             if flips[1] == 1:
                 new = -new
             new = wrap_two_pi(new)
-        pos[0, i] = q[0]
-        pos[1, i] = q[1]
-        theta[i] = new
+        pos[0, s] = q[0]
+        pos[1, s] = q[1]
+        theta[s] = new
+        ids[s] = i
+
+
+@ti.kernel
+def _frame_rows(m: ti.i32, selected: ti.types.ndarray(), slot_of: ti.types.ndarray(), order: ti.types.ndarray(),
+                pos_sorted: ti.types.ndarray(), theta: ti.types.ndarray(), out: ti.types.ndarray()):
+    for r in range(m):
+        s = slot_of[selected[r]]
+        out[r, 0] = pos_sorted[0, s]
+        out[r, 1] = pos_sorted[1, s]
+        out[r, 2] = theta[order[s]]
 
 
 class Vicsek(Model):
-    """Vicsek / Jadbabaie / Samiloglu-Gazi-Koku heading alignment on the cell grid (synchronous updates)."""
+    """Vicsek / Jadbabaie / Samiloglu-Gazi-Koku heading alignment on the cell grid (synchronous updates).
+
+    The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each
+    element), so the grid build and the step read and write memory nearly sequentially; :meth:`state` returns
+    them in agent order.
+    """
 
     name = "vicsek"
     metric_descriptions = {
@@ -165,6 +181,7 @@ class Vicsek(Model):
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.pos = ti.ndarray(ftype, (2, n))  # component-major, as every kernel array
         self.theta = ti.ndarray(ftype, n)
+        self.ids = ti.ndarray(ti.i32, n)
         self.payload = ti.ndarray(ftype, (3, n))  # cos, sin, theta in cell order
         self.grid = CellGrid(n, 2, params.boundary, params.box, params.radius, real)
         self.graph = NeighbourGraph(self.grid)
@@ -178,15 +195,21 @@ class Vicsek(Model):
         real = self.engine.real
         self.pos.from_numpy(np.ascontiguousarray(np.asarray(state["x"]).T, dtype=real))
         self.theta.from_numpy(np.ascontiguousarray(state["theta"], dtype=real))
+        self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
         self.step_index = step
         self._grid_step = -1
 
     def state(self) -> dict[str, np.ndarray]:
-        return {"x": np.ascontiguousarray(self.pos.to_numpy().T), "theta": self.theta.to_numpy()}
+        ids = self.ids.to_numpy()
+        x = np.empty((self.params.n, 2), dtype=self.engine.real)
+        theta = np.empty(self.params.n, dtype=self.engine.real)
+        x[ids] = self.pos.to_numpy().T
+        theta[ids] = self.theta.to_numpy()
+        return {"x": x, "theta": theta}
 
     def _ensure_grid(self) -> None:
         if self._grid_step != self.step_index:
-            self.grid.build(self.pos)
+            self.grid.build(self.pos, self.ids)
             self._grid_step = self.step_index
 
     def advance(self, steps: int) -> None:
@@ -198,8 +221,8 @@ class Vicsek(Model):
             _step(self.step_index, self.seed, p.n, p.radius, p.speed, p.noise, p.box,
                   math.radians(p.max_turn_deg), inv_g,
                   RULES[p.rule], boundary_code(p.boundary), p.leader.enabled,
-                  g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order, self.grid.pos_sorted,
-                  self.grid.coords_sorted, self.payload, self.pos, self.theta)
+                  g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order, self.grid.id_sorted,
+                  self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos, self.theta, self.ids)
             self.step_index += 1
 
     def metrics(self) -> dict[str, float]:
@@ -209,7 +232,7 @@ class Vicsek(Model):
         out = {"polarization": polarization, "mean_heading": mean_heading}
         out.update(self.graph.compute(p.radius, p.box))
         if p.leader.enabled:
-            theta = self.theta.to_numpy().astype(np.float64)
+            theta = self.state()["theta"].astype(np.float64)
             diff = np.abs((theta[1:] - theta[0] + math.pi) % TWO_PI - math.pi)
             out["leader_error"] = float(diff.mean()) if p.n > 1 else 0.0
         return {name: out[name] for name in self.metric_descriptions}
@@ -217,25 +240,30 @@ class Vicsek(Model):
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
         p = self.params
         self._ensure_grid()
-        real = self.engine.real
         if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
             self._drawing = SubsetDrawing(self.grid, selected)
-        ids = self._drawing.ids
-        theta = gather(self.theta, ids, len(selected), real)
+        rows = self._rows(self._drawing.ids, len(selected))
         leader = leader_direction = None
         if p.leader.enabled:
-            leader = gather_rows(self.pos, self._leader_id, 1, real)[0].astype(np.float32)
-            th0 = gather(self.theta, self._leader_id, 1, real)[0]
+            x0, y0, th0 = self._rows(self._leader_id, 1)[0]
+            leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
         return Frame(
-            positions=gather_rows(self.pos, ids, len(selected), real).astype(np.float32),
-            directions=np.stack([np.cos(theta), np.sin(theta)], axis=1).astype(np.float32),
+            positions=rows[:, :2].astype(np.float32),
+            directions=np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32),
             arrow_length=0.5 * p.radius,
             edges=self._drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
             leader=leader,
             leader_direction=leader_direction,
             radius=0.15 * p.radius,
         )
+
+    def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
+        """(m, 3) rows x, y, theta of agents[:m] (grid current)."""
+        out = ti.ndarray(self.pos.dtype, (max(1, m), 3))
+        if m:
+            _frame_rows(m, agents, self.grid.slot_of, self.grid.order, self.grid.pos_sorted, self.theta, out)
+        return out.to_numpy()[:m]
 
     def world(self) -> WorldSpec:
         return WorldSpec(dim=2, boundary=self.params.boundary, box=self.params.box, dt=self.dt)
