@@ -57,8 +57,17 @@ def heading_order(theta: ti.Ndarray, n: int) -> tuple[float, float]:
 
 @ti.func
 def _find(parent: ti.template(), x):
+    """Root of x, halving the path on the way (x's parent becomes its grandparent).
+
+    The halving write is an atomic_min to an ancestor in the same set, so it never loses a link: a concurrent
+    hook that it overrides is merged again by the hooking thread (see :func:`_union`).
+    """
     while parent[x] != x:
-        x = parent[x]
+        p = parent[x]
+        gp = parent[p]
+        if gp != p:
+            ti.atomic_min(parent[x], gp)
+        x = gp
     return x
 
 
@@ -117,7 +126,8 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
             for k in range(start[lo], ti.min(start[hi], s)):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 if d.norm_sqr() <= radius * radius and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
-                    root = _union(parent, root, k)
+                    if parent[k] != root:  # k already hangs under s's root: nothing to merge
+                        root = _union(parent, root, k)
     for s in range(n):
         parent[s] = _find(parent, s)
     for s in range(n):

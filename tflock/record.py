@@ -499,8 +499,20 @@ def read_recording(path: Path) -> RecordingSummary:
 
 
 def rerun_executable() -> list[str]:
-    """Command prefix that runs the ``rerun`` CLI installed with rerun-sdk."""
+    """Command prefix that runs the ``rerun`` CLI installed with rerun-sdk.
+
+    The binary itself where it can be found: the ``rerun`` console script is a Python wrapper that runs it as a
+    child, and terminating the wrapper would leave the viewer or web server running.
+    """
     exe = "rerun.exe" if sys.platform == "win32" else "rerun"
+    try:
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).parent / exe
+        if binary.is_file():
+            return [str(binary)]
+    except ImportError:
+        pass
     beside = Path(sys.executable).parent / exe
     if beside.is_file():
         return [str(beside)]
@@ -551,4 +563,8 @@ def open_viewer(path: Path, web: bool = False, port: int = 9090, grpc_port: int 
         proc.wait()
     except KeyboardInterrupt:
         proc.terminate()
-        proc.wait()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
