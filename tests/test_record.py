@@ -170,9 +170,8 @@ def test_not_a_recording(tmp_path: Path) -> None:
         read_recording(other)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="display check is Linux-only")
 def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    if not sys.platform.startswith("linux"):
-        pytest.skip("display check is Linux-only")
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     with pytest.raises(RuntimeError, match="--spawn needs a display"):

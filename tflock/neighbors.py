@@ -255,13 +255,17 @@ class CellGrid:
 
 
 @ti.kernel
-def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
-                 radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-                 boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-                 id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-                 coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray()):
+def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
+           radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+           id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+           coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
+           limit: ti.i32, fill: ti.template(), edges: ti.types.ndarray()):
+    """Count (fill = False) or write (fill = True, from `offsets`, at most `limit`) the drawn neighbour pairs."""
     for m in range(n_sel):
-        counts[m] = 0
+        e = 0
+        if ti.static(fill):
+            e = offsets[m]
         i = selected_ids[m]
         s = slot_of[i]
         p = load_vec(pos_sorted, s, dim)
@@ -273,33 +277,14 @@ def _count_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.t
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
                 if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
-                    counts[m] += 1
-
-
-@ti.kernel
-def _fill_pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
-                radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-                boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-                id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-                coords_sorted: ti.types.ndarray(), offsets: ti.types.ndarray(), limit: ti.i32,
-                edges: ti.types.ndarray()):
-    for m in range(n_sel):
-        e = offsets[m]
-        i = selected_ids[m]
-        s = slot_of[i]
-        p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
-        for o in ti.static(range(span_count(boundary, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], start[hi]):
-                j = id_sorted[k]
-                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
-                if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1 and e < limit:
-                    for a in ti.static(range(dim)):
-                        edges[e, 0, a] = p[a]
-                        edges[e, 1, a] = p[a] + d[a]
+                    if ti.static(fill):
+                        if e < limit:
+                            for a in ti.static(range(dim)):
+                                edges[e, 0, a] = p[a]
+                                edges[e, 1, a] = p[a] + d[a]
                     e += 1
+        if ti.static(not fill):
+            counts[m] = e
 
 
 class SubsetDrawing:
@@ -335,12 +320,12 @@ class SubsetDrawing:
         args = (n_sel, self.ids, self.mask, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
                 g.dim, self.grid.start, self.grid.id_sorted, self.grid.slot_of, self.grid.pos_sorted,
                 self.grid.coords_sorted)
-        _count_pairs(*args, self.counts)
+        _pairs(*args, self.counts, self.offsets, 0, False, self.offsets)
         per_agent = self.counts.to_numpy()[:n_sel]
         total = int(min(per_agent.sum(), max_edges))
         if total == 0:
             return np.zeros((0, 2, g.dim), dtype=self.grid.real)
         self.offsets.from_numpy(np.concatenate(([0], np.cumsum(per_agent)[:-1])).astype(np.int32))
         edges = ti.ndarray(self.grid.pos_sorted.dtype, (total, 2, g.dim))
-        _fill_pairs(*args, self.offsets, total, edges)
+        _pairs(*args, self.counts, self.offsets, total, True, edges)
         return edges.to_numpy()
