@@ -243,10 +243,8 @@ def test_laplacian_with_large_g_is_valid() -> None:
         (["seed=4294967296"], "seed: must be between 0 and 4294967295, got 4294967296"),
         (["steps=-1"], "steps: must be >= 0, got -1"),
         (["log.every=0"], "log.every: must be >= 1, got 0"),
-        (
-            ["params.async_bound=2"],
-            "params.async_bound: asynchronous updates (B > 1) are not implemented yet; allowed: 1, got 2",
-        ),
+        (["params.async_bound=0"], "params.async_bound: must be between 1 and 1000, got 0"),
+        (["params.async_bound=1001"], "params.async_bound: must be between 1 and 1000, got 1001"),
         (
             ["params.rule=laplacian", "params.g=50"],
             "params.g: must be > params.n (= 100000) for rule 'laplacian' (Jadbabaie eq. 18), got 50",

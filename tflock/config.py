@@ -205,16 +205,13 @@ class VicsekParams(BaseModel):
         description="turn limit alpha per step, degrees, in (0, 360] (Samiloglu eq. 7); 360 = no limit",
     )
     async_bound: Int = Field(
-        1, ge=1, description="asynchrony bound B, >= 1; 1 = synchronous updates (the only one implemented)"
+        1,
+        ge=1,
+        le=1000,
+        description="asynchrony bound B in [1, 1000] (Samiloglu Assumption 1): each agent updates at least once "
+        "in any B steps and sees neighbours up to B - 1 steps late; 1 = synchronous updates",
     )
     leader: LeaderConfig = Field(default_factory=LeaderConfig, description="optional leader (agent 0)")
-
-    @field_validator("async_bound")
-    @classmethod
-    def _only_synchronous(cls, value: int) -> int:
-        if value != 1:
-            raise _rule_error("asynchronous updates (B > 1) are not implemented yet; allowed: 1", value)
-        return value
 
     @model_validator(mode="after")
     def _cross_field_rules(self) -> VicsekParams:

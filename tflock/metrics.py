@@ -21,6 +21,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.rng import Stream, hash_ti, randint_ti
 from tflock.space import OPEN, displacement
 
 BLOCK = 4096
@@ -178,3 +179,78 @@ class NeighbourGraph:
             "mean_neighbors": float(self.partial.to_numpy().sum()) / n,
             "max_neighbors": float(max_degree),
         }
+
+
+@ti.kernel
+def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
+    for blk in range(partial.shape[0]):
+        total = 0.0
+        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+            total += values[i]
+        partial[blk] = total
+
+
+def mean(values: ti.Ndarray, n: int) -> float:
+    """Deterministic mean of an (n,) float ndarray."""
+    partial = _scratch((n_blocks(n),), values.dtype)
+    _block_sums(values, n, partial)
+    return float(partial.to_numpy().astype(np.float64).sum()) / n
+
+
+#: up to this many agents, e_d and e_theta are exact (all n (n - 1) / 2 pairs); above, estimates
+EXACT_PAIRS_MAX = 4096
+#: pairs sampled (uniformly, with replacement) for the estimates
+SAMPLED_PAIRS = 1 << 16
+
+
+@ti.func
+def _pair_terms(pos: ti.template(), theta: ti.template(), i, j, box, boundary: ti.template(), dim: ti.template()):
+    d = displacement(load_vec(pos, i, dim), load_vec(pos, j, dim), box, boundary)
+    a = theta[j] - theta[i]
+    return d.norm(), ti.abs(a - 2 * math.pi * ti.floor((a + math.pi) / (2 * math.pi)))
+
+
+@ti.kernel
+def _pairs_exact(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, box: float,
+                 boundary: ti.template(), dim: ti.template(), partial: ti.types.ndarray()):
+    for i in range(n):
+        dist = 0.0
+        angle = 0.0
+        for j in range(i + 1, n):
+            a, b = _pair_terms(pos, theta, i, j, box, boundary, dim)
+            dist += a
+            angle += b
+        partial[i, 0] = dist
+        partial[i, 1] = angle
+
+
+@ti.kernel
+def _pairs_sampled(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, box: float, seed: ti.u32,
+                   step: ti.i32, boundary: ti.template(), dim: ti.template(), partial: ti.types.ndarray()):
+    for m in range(partial.shape[0]):  # ordered pair (i, j), i != j, uniform: unbiased for the pair mean
+        i = randint_ti(hash_ti(seed, step, m, Stream.PAIR_I), n)
+        j = randint_ti(hash_ti(seed, step, m, Stream.PAIR_J), n - 1)
+        if j >= i:
+            j += 1
+        a, b = _pair_terms(pos, theta, i, j, box, boundary, dim)
+        partial[m, 0] = a
+        partial[m, 1] = b
+
+
+def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boundary: int, dim: int, seed: int,
+                    step: int) -> tuple[float, float]:
+    """Samiloglu-Gazi-Koku section V: e_d, the mean pairwise distance (minimum image when periodic), and
+    e_theta, the mean pairwise circular heading difference |wrap(theta_i - theta_j)| in [0, pi].
+
+    Exact for n <= EXACT_PAIRS_MAX; above, the mean over SAMPLED_PAIRS uniformly drawn pairs (unbiased; drawn
+    from (seed, step, sample) so the estimate is reproducible). Both are invariant to the order of agents.
+    """
+    if n < 2:
+        return 0.0, 0.0
+    if n <= EXACT_PAIRS_MAX:
+        partial = _scratch((n, 2), pos.dtype)
+        _pairs_exact(pos, theta, n, box, boundary, dim, partial)
+        return tuple(partial.to_numpy().astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
+    partial = _scratch((SAMPLED_PAIRS, 2), pos.dtype)
+    _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
+    return tuple(partial.to_numpy().astype(np.float64).mean(axis=0))

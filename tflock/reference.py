@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from tflock.config import VicsekParams
-from tflock.rng import Stream, uniform_np
+from tflock.rng import Stream, bernoulli_np, hash_np, pair_hash_np, randint_np, uniform_np
 
 TWO_PI = 2 * math.pi
 
@@ -61,27 +61,78 @@ def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: flo
     return x, theta
 
 
-def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
-    """One synchronous step t -> t+1 of the Vicsek family (DESIGN.md 3.1); returns (x, theta) at t+1."""
-    n = len(theta)
-    a = adjacency(x, params.radius, params.boundary, params.box).astype(x.dtype)
+def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: VicsekParams) -> np.ndarray:
+    """phi_i of 003 eqs. (8)-(10) (Jadbabaie eqs. 2, 17): a[i, j] = 1 when j is a neighbour of i, seen[i, j] the
+    heading of j that i uses (theta_j, or theta_j(tau) with delays)."""
     count = a.sum(axis=1)
     if params.rule == "vector":  # 003 eq. (10)
-        sx = a @ np.cos(theta) + np.cos(theta)
-        sy = a @ np.sin(theta) + np.sin(theta)
-        phi = wrap_pi(np.arctan2(sy, sx) - theta)
-    elif params.rule == "average":  # 003 eq. (8), Jadbabaie eq. (2)
-        phi = (theta + a @ theta) / (1 + count) - theta
-    elif params.rule == "relative":  # 003 eqs. (5), (9)
-        phi = (a * wrap_pi(theta[None, :] - theta[:, None])).sum(axis=1) / (1 + count)
-    else:  # laplacian, Jadbabaie eq. (17) with G = gI
-        phi = (a @ theta - count * theta) / params.g
+        sx = (a * np.cos(seen)).sum(axis=1) + np.cos(theta)
+        sy = (a * np.sin(seen)).sum(axis=1) + np.sin(theta)
+        return wrap_pi(np.arctan2(sy, sx) - theta)
+    if params.rule == "average":  # 003 eq. (8), Jadbabaie eq. (2)
+        return (theta + (a * seen).sum(axis=1)) / (1 + count) - theta
+    if params.rule == "relative":  # 003 eqs. (5), (9)
+        return (a * wrap_pi(seen - theta[:, None])).sum(axis=1) / (1 + count)
+    return ((a * seen).sum(axis=1) - count * theta) / params.g  # laplacian, Jadbabaie eq. (17), G = gI
+
+
+def turn_and_noise(theta: np.ndarray, phi: np.ndarray, t: int, params: VicsekParams, seed: int) -> np.ndarray:
+    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2], headings wrapped into [0, 2 pi)."""
     alpha = math.radians(params.max_turn_deg)
-    xi = params.noise * (uniform_np(seed, t, np.arange(n), Stream.NOISE) - 0.5)
-    new = wrap_two_pi((theta + np.clip(phi, -alpha, alpha) + xi).astype(x.dtype))
+    xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
+    return wrap_two_pi((theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype))
+
+
+def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
+    """One synchronous step t -> t+1 of the Vicsek family (DESIGN.md 3.1); returns (x, theta) at t+1."""
+    a = adjacency(x, params.radius, params.boundary, params.box).astype(x.dtype)
+    seen = np.broadcast_to(theta, a.shape)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen, params), t, params, seed)
     if params.leader.enabled:
         new[0] = theta[0]
     return move(x, new, params.speed, params.boundary, params.box)
+
+
+def async_draws(seed: int, t: int, omega: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray]:
+    """003 Table 1: which agents update at step t (probability 1 / (B - Omega_i + 1)) and the delay d[i, j] in
+    {0, ..., B - 1} with which i sees j (tau = t - d)."""
+    n = len(omega)
+    ids = np.arange(n)
+    update = bernoulli_np(hash_np(seed, t, ids, Stream.UPDATE), bound - omega + 1)
+    delays = randint_np(pair_hash_np(seed, t, ids[:, None], ids[None, :], Stream.DELAY), bound)
+    return update, delays
+
+
+def vicsek_step_async(hist_x: np.ndarray, hist_theta: np.ndarray, omega: np.ndarray, t: int, params: VicsekParams,
+                      seed: int):
+    """One step t -> t+1 with asynchronous updates and delayed views (003 Assumption 1, Table 1).
+
+    hist_x (B+1, n, 2) and hist_theta (B+1, n) hold the state at step tau in slot tau mod (B + 1) (before t = 0:
+    the initial state). Returns the new history (slot t+1 written), Omega and the mask of updated agents.
+    """
+    bound = params.async_bound
+    ring = bound + 1
+    x, theta = hist_x[t % ring], hist_theta[t % ring]
+    n = len(theta)
+    update, delays = async_draws(seed, t, omega, bound)
+    if params.leader.enabled:
+        update[0] = False
+    slots = (t - delays) % ring
+    cols = np.broadcast_to(np.arange(n), (n, n))
+    seen_x = hist_x[slots, cols]  # (n, n, 2): x_j(tau_ij)
+    seen_theta = hist_theta[slots, cols]
+    d = seen_x - x[:, None, :]
+    if params.boundary == "periodic":
+        d = d - params.box * np.round(d / params.box)
+    r = x.dtype.type(params.radius)
+    a = ((d * d).sum(axis=2) <= r * r).astype(x.dtype)
+    np.fill_diagonal(a, 0)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params), t, params, seed)
+    new = np.where(update, new, theta).astype(theta.dtype)
+    x_new, theta_new = move(x, new, params.speed, params.boundary, params.box)
+    hist_x, hist_theta = hist_x.copy(), hist_theta.copy()
+    hist_x[(t + 1) % ring], hist_theta[(t + 1) % ring] = x_new, theta_new
+    return hist_x, hist_theta, np.where(update, 1, omega + 1), update
 
 
 def heading_order(theta: np.ndarray) -> tuple[float, float]:
@@ -115,11 +166,27 @@ def graph_metrics(x: np.ndarray, radius: float, boundary: str, box: float) -> di
             "mean_neighbors": float(degree.mean()), "max_neighbors": float(degree.max())}
 
 
-def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams) -> dict[str, float]:
-    """Every metric the Vicsek model reports."""
+def pairwise_errors(x: np.ndarray, theta: np.ndarray, boundary: str, box: float) -> tuple[float, float]:
+    """003 section V: e_d mean pairwise distance, e_theta mean pairwise |wrap(theta_i - theta_j)| (all pairs)."""
+    n = len(theta)
+    upper = np.triu(np.ones((n, n), dtype=bool), k=1)
+    d = displacements(x.astype(np.float64), boundary, box)
+    dist = np.sqrt((d * d).sum(axis=2))[upper]
+    th = theta.astype(np.float64)
+    angle = np.abs(wrap_pi(th[None, :] - th[:, None]))[upper]
+    return float(dist.mean()), float(angle.mean())
+
+
+def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams, previous_theta: np.ndarray,
+                   updated: np.ndarray) -> dict[str, float]:
+    """Every metric the Vicsek model reports, for state (x, theta) reached from headings `previous_theta` with
+    the agents in `updated` having updated."""
     polarization, mean_heading = heading_order(theta)
     out = {"polarization": polarization, "mean_heading": mean_heading}
     out.update(graph_metrics(x, params.radius, params.boundary, params.box))
+    out["e_d"], out["e_theta"] = pairwise_errors(x, theta, params.boundary, params.box)
+    out["de_theta"] = float(np.abs(wrap_pi(theta.astype(np.float64) - previous_theta)).mean())
+    out["updated"] = float(np.mean(updated))
     if params.leader.enabled:
         th = theta.astype(np.float64)
         out["leader_error"] = float(np.abs(wrap_pi(th[1:] - th[0])).mean()) if len(th) > 1 else 0.0

@@ -30,6 +30,8 @@ class Stream(IntEnum):
     UPDATE = 7
     DELAY = 8
     SUBSET = 9
+    PAIR_I = 10
+    PAIR_J = 11
 
 
 def _mix_np(x: np.ndarray) -> np.ndarray:
@@ -55,6 +57,23 @@ def uniform_np(seed: int, step: int | np.ndarray, agent: int | np.ndarray, strea
     return (hash_np(seed, step, agent, stream) >> np.uint32(8)).astype(np.float64) * _INV_2_24
 
 
+def pair_hash_np(seed: int, step: int, agent: int | np.ndarray, other: int | np.ndarray, stream: int) -> np.ndarray:
+    """Hash of a key with two agents (e.g. the delay with which `agent` sees `other`)."""
+    with np.errstate(over="ignore"):
+        other_mix = _mix_np(np.asarray(other, dtype=np.int64).astype(np.uint32))
+        return _mix_np(hash_np(seed, step, agent, stream) + other_mix)
+
+
+def randint_np(h: np.ndarray, bound: int) -> np.ndarray:
+    """Integer in [0, bound) from a hash: floor(u * bound) computed exactly in integers (bound < 2^31)."""
+    return ((h >> np.uint32(8)).astype(np.int64) * bound) >> 24
+
+
+def bernoulli_np(h: np.ndarray, k: np.ndarray | int) -> np.ndarray:
+    """True with probability 1/k (k >= 1): u < 1/k decided exactly in integers, as the kernels do."""
+    return (h >> np.uint32(8)).astype(np.int64) * np.asarray(k, dtype=np.int64) < (1 << 24)
+
+
 @ti.func
 def _mix_ti(x):
     x ^= x >> ti.u32(16)
@@ -78,3 +97,21 @@ def hash_ti(seed, step, agent, stream):
 def uniform_ti(seed, step, agent, stream):
     """Taichi twin of :func:`uniform_np`, in the default float type."""
     return ti.cast(hash_ti(seed, step, agent, stream) >> ti.u32(8), float) * _INV_2_24
+
+
+@ti.func
+def pair_hash_ti(seed, step, agent, other, stream):
+    """Taichi twin of :func:`pair_hash_np`."""
+    return _mix_ti(hash_ti(seed, step, agent, stream) + _mix_ti(ti.cast(other, ti.u32)))
+
+
+@ti.func
+def randint_ti(h, bound):
+    """Taichi twin of :func:`randint_np`."""
+    return ti.cast((ti.cast(h >> ti.u32(8), ti.i64) * bound) >> 24, ti.i32)
+
+
+@ti.func
+def bernoulli_ti(h, k):
+    """Taichi twin of :func:`bernoulli_np`."""
+    return ti.cast(h >> ti.u32(8), ti.i64) * k < (1 << 24)

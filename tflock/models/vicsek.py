@@ -32,7 +32,7 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
-from tflock.metrics import NeighbourGraph, heading_order
+from tflock.metrics import EXACT_PAIRS_MAX, SAMPLED_PAIRS, NeighbourGraph, heading_order, mean, pairwise_errors
 from tflock.models.base import Model
 from tflock.neighbors import (
     CellGrid,
@@ -43,8 +43,8 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
-from tflock.record import Frame, WorldSpec
-from tflock.rng import Stream, uniform_np, uniform_ti
+from tflock.record import Frame, WorldSpec, heading_colors
+from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, uniform_np, uniform_ti
 from tflock.space import OPEN, PERIODIC, REFLECTING, boundary_code, displacement, reflect, wrap_periodic
 
 RULES = {"vector": 0, "average": 1, "relative": 2, "laplacian": 3}
@@ -80,54 +80,82 @@ def wrap_two_pi(a):
 
 @ti.kernel
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise: float, box: float,
-          max_turn: float, inv_g: float,
-          rule: ti.template(), boundary: ti.template(), leader: ti.template(),
+          max_turn: float, inv_g: float, bound: ti.i32,
+          rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
           nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
           id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
-          payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray()):
+          payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
+          turn: ti.types.ndarray(), updated: ti.types.ndarray(), omega: ti.types.ndarray(),
+          hist_pos: ti.types.ndarray(), hist_theta: ti.types.ndarray()):
     for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
         th = theta[order[s]]
         payload[0, s] = ti.cos(th)
         payload[1, s] = ti.sin(th)
         payload[2, s] = th
     r2 = radius * radius
+    # an agent is never further than (B - 1) v0 from where it was B - 1 steps ago (slack for rounding)
+    reach2 = ((radius + (bound - 1) * speed) * (1.0 + 1e-5)) ** 2
+    ring = bound + 1  # the ring holds B + 1 states: slot (t + 1) is written while the B views t-B+1..t are read
     for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
         i = id_sorted[s]
         p = load_vec(pos_sorted, s, 2)
         c = load_ivec(coords_sorted, s, 2)
         th_i = payload[2, s]
-        acc_a = 0.0
-        acc_b = 0.0
-        count = 0.0
-        for o in ti.static(range(span_count(boundary, 2))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
-            for k in range(start[lo], start[hi]):
-                d = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
-                w = ti.select(d.norm_sqr() <= r2, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
-                if ti.static(boundary == OPEN):
-                    w *= same_cell(coords_sorted, k, cell, boundary, 2)
-                if ti.static(rule == VECTOR):
-                    acc_a += w * payload[0, k]
-                    acc_b += w * payload[1, k]
-                elif ti.static(rule == RELATIVE):
-                    acc_a += w * wrap_pi(payload[2, k] - th_i)
-                else:
-                    acc_a += w * payload[2, k]
-                count += w
-        phi = 0.0  # desired turn, 003 eqs. (8)-(10)
-        if ti.static(rule == VECTOR):
-            phi = wrap_pi(ti.atan2(acc_b + payload[1, s], acc_a + payload[0, s]) - th_i)
-        elif ti.static(rule == AVERAGE):
-            phi = (th_i + acc_a) / (1.0 + count) - th_i
-        elif ti.static(rule == RELATIVE):
-            phi = acc_a / (1.0 + count)
-        else:
-            phi = inv_g * (acc_a - count * th_i)
-        xi = noise * (uniform_ti(seed, t, i, Stream.NOISE) - 0.5)
-        new = wrap_two_pi(th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi)
+        update = True
+        if ti.static(asynchronous):  # 003 Table 1: update with probability 1 / (B - Omega_i + 1)
+            update = bernoulli_ti(hash_ti(seed, t, i, Stream.UPDATE), bound - omega[i] + 1)
         if ti.static(leader):
             if i == 0:
-                new = th_i
+                update = False  # the leader keeps theta0 (Jadbabaie eq. 22)
+        new = th_i
+        if update:
+            acc_a = 0.0
+            acc_b = 0.0
+            count = 0.0
+            for o in ti.static(range(span_count(boundary, 2))):
+                lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
+                for k in range(start[lo], start[hi]):
+                    if ti.static(not asynchronous):
+                        d = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
+                        w = ti.select(d.norm_sqr() <= r2, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
+                        if ti.static(boundary == OPEN):
+                            w *= same_cell(coords_sorted, k, cell, boundary, 2)
+                        if ti.static(rule == VECTOR):
+                            acc_a += w * payload[0, k]
+                            acc_b += w * payload[1, k]
+                        elif ti.static(rule == RELATIVE):
+                            acc_a += w * wrap_pi(payload[2, k] - th_i)
+                        else:
+                            acc_a += w * payload[2, k]
+                        count += w
+                    else:  # agent j as seen at tau ~ U{t-B+1, ..., t} (003 Assumption 1b)
+                        d_now = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
+                        if d_now.norm_sqr() <= reach2 and k != s and same_cell(coords_sorted, k, cell, boundary, 2):
+                            j = id_sorted[k]
+                            slot = (t - randint_ti(pair_hash_ti(seed, t, i, j, Stream.DELAY), bound) + ring) % ring
+                            d = displacement(p, ti.Vector([hist_pos[slot, 0, j], hist_pos[slot, 1, j]]), box,
+                                             boundary)
+                            if d.norm_sqr() <= r2:
+                                th_j = hist_theta[slot, j]
+                                if ti.static(rule == VECTOR):
+                                    acc_a += ti.cos(th_j)
+                                    acc_b += ti.sin(th_j)
+                                elif ti.static(rule == RELATIVE):
+                                    acc_a += wrap_pi(th_j - th_i)
+                                else:
+                                    acc_a += th_j
+                                count += 1.0
+            phi = 0.0  # desired turn, 003 eqs. (8)-(10)
+            if ti.static(rule == VECTOR):
+                phi = wrap_pi(ti.atan2(acc_b + payload[1, s], acc_a + payload[0, s]) - th_i)
+            elif ti.static(rule == AVERAGE):
+                phi = (th_i + acc_a) / (1.0 + count) - th_i
+            elif ti.static(rule == RELATIVE):
+                phi = acc_a / (1.0 + count)
+            else:
+                phi = inv_g * (acc_a - count * th_i)
+            xi = noise * (uniform_ti(seed, t, i, Stream.NOISE) - 0.5)
+            new = wrap_two_pi(th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi)
         q = p + speed * ti.Vector([ti.cos(new), ti.sin(new)])
         if ti.static(boundary == PERIODIC):
             q = wrap_periodic(q, box)
@@ -142,20 +170,41 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
         pos[1, s] = q[1]
         theta[s] = new
         ids[s] = i
+        turn[i] = ti.abs(wrap_pi(new - th_i))
+        updated[i] = ti.select(update, 1, 0)
+        if ti.static(asynchronous):
+            omega[i] = ti.select(update, 1, omega[i] + 1)
+            nxt = (t + 1) % ring
+            hist_pos[nxt, 0, i] = q[0]
+            hist_pos[nxt, 1, i] = q[1]
+            hist_theta[nxt, i] = new
 
 
 @ti.kernel
 def _frame_rows(m: ti.i32, selected: ti.types.ndarray(), slot_of: ti.types.ndarray(), order: ti.types.ndarray(),
-                pos_sorted: ti.types.ndarray(), theta: ti.types.ndarray(), out: ti.types.ndarray()):
+                pos_sorted: ti.types.ndarray(), theta: ti.types.ndarray(), updated: ti.types.ndarray(),
+                out: ti.types.ndarray()):
     for r in range(m):
-        s = slot_of[selected[r]]
+        a = selected[r]
+        s = slot_of[a]
         out[r, 0] = pos_sorted[0, s]
         out[r, 1] = pos_sorted[1, s]
         out[r, 2] = theta[order[s]]
+        out[r, 3] = updated[a]
 
 
 class Vicsek(Model):
-    """Vicsek / Jadbabaie / Samiloglu-Gazi-Koku heading alignment on the cell grid (synchronous updates).
+    """Vicsek / Jadbabaie / Samiloglu-Gazi-Koku heading alignment on the cell grid.
+
+    Synchronous updates, or with ``async_bound`` B > 1 the partially asynchronous updates of Samiloglu-Gazi-Koku
+    (Assumption 1, Table 1): each agent keeps Omega_i (steps since its last update, starting at 1) and updates
+    at step t with probability 1 / (B - Omega_i + 1) (decided by ``Stream.UPDATE``), so it updates at least once
+    in any B steps; an updating agent i sees each candidate j as it was at tau = t - d, d uniform in
+    {0, ..., B - 1} (``Stream.DELAY`` keyed by i and j): j's position x_j(tau) decides whether it is a
+    neighbour and its heading theta_j(tau) enters the rule. Candidates come from the grid with cells of side
+    >= R + (B - 1) v0 (no agent moves further than that in B - 1 steps), and a ring of B + 1 past states
+    (before t = 0 the initial state) supplies the delayed views. Agents that do not update keep their heading
+    (no noise) and still move.
 
     The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each
     element), so the grid build and the step read and write memory nearly sequentially; :meth:`state` returns
@@ -163,27 +212,42 @@ class Vicsek(Model):
     """
 
     name = "vicsek"
-    metric_descriptions = {
-        "polarization": "polarization |mean unit heading| (Vicsek order parameter)",
-        "mean_heading": "circular mean heading (rad)",
-        "mean_neighbors": "mean neighbour count",
-        "max_neighbors": "max neighbour count",
-        "clusters": "clusters (components of the R-graph)",
-        "largest_cluster": "largest cluster fraction S",
-    }
 
-    def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo) -> None:
+    def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo, force_async: bool = False) -> None:
+        """`force_async` runs the asynchronous kernel even for B = 1 (it must reproduce the synchronous one)."""
         super().__init__(params, seed, engine)
-        if params.leader.enabled:
-            self.metric_descriptions = {**self.metric_descriptions,
-                                        "leader_error": "mean |heading - leader heading| of followers (rad)"}
         n, real = params.n, engine.real
+        exact = n <= EXACT_PAIRS_MAX
+        estimate = "" if exact else f" (estimate from {SAMPLED_PAIRS} sampled pairs)"
+        self.metric_descriptions = {
+            "polarization": "polarization |mean unit heading| (Vicsek order parameter)",
+            "mean_heading": "circular mean heading (rad)",
+            "mean_neighbors": "mean neighbour count",
+            "max_neighbors": "max neighbour count",
+            "clusters": "clusters (components of the R-graph)",
+            "largest_cluster": "largest cluster fraction S",
+            "e_d" if exact else "e_d_est": "e_d mean pairwise distance" + estimate,
+            "e_theta" if exact else "e_theta_est": "e_theta mean pairwise heading difference (rad)" + estimate,
+            "de_theta": "de_theta mean heading change per step (rad)",
+            "updated": "fraction of agents that updated at this step",
+        }
+        if params.leader.enabled:
+            self.metric_descriptions["leader_error"] = "mean |heading - leader heading| of followers (rad)"
+        self.asynchronous = force_async or params.async_bound > 1
+        bound = params.async_bound
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.pos = ti.ndarray(ftype, (2, n))  # component-major, as every kernel array
         self.theta = ti.ndarray(ftype, n)
         self.ids = ti.ndarray(ti.i32, n)
         self.payload = ti.ndarray(ftype, (3, n))  # cos, sin, theta in cell order
-        self.grid = CellGrid(n, 2, params.boundary, params.box, params.radius, real)
+        self.turn = ti.ndarray(ftype, n)  # |heading change| of each agent at the last step
+        self.updated = ti.ndarray(ti.i32, n)  # 1 where the agent updated at the last step
+        ring, m = (bound + 1, n) if self.asynchronous else (1, 1)  # unused 1-element arrays when synchronous
+        self.omega = ti.ndarray(ti.i32, m)
+        self.hist_pos = ti.ndarray(ftype, (ring, 2, m))
+        self.hist_theta = ti.ndarray(ftype, (ring, m))
+        reach = params.radius + (bound - 1) * params.speed if self.asynchronous else params.radius
+        self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real)
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
         self._drawing: SubsetDrawing | None = None
@@ -192,10 +256,29 @@ class Vicsek(Model):
         self.set_state(initial_state(params, seed), 0)
 
     def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
+        """Replace the state. With asynchrony, `state` may carry the ring of past states (``history_x``,
+        ``history_theta``) and ``omega`` as :meth:`state` returns them; without them every past view becomes this
+        state and Omega = 1."""
         real = self.engine.real
-        self.pos.from_numpy(np.ascontiguousarray(np.asarray(state["x"]).T, dtype=real))
-        self.theta.from_numpy(np.ascontiguousarray(state["theta"], dtype=real))
+        x = np.ascontiguousarray(np.asarray(state["x"]).T, dtype=real)
+        theta = np.ascontiguousarray(state["theta"], dtype=real)
+        self.pos.from_numpy(x)
+        self.theta.from_numpy(theta)
         self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
+        self.turn.fill(0)
+        self.updated.fill(0)
+        if self.asynchronous:
+            ring = self.hist_theta.shape[0]
+            if "history_x" in state:  # (ring, n, 2) and (ring, n): slot tau mod ring holds step tau
+                hist_x = np.transpose(np.asarray(state["history_x"]), (0, 2, 1))
+                hist_theta = np.asarray(state["history_theta"])
+                self.omega.from_numpy(np.asarray(state["omega"], dtype=np.int32))
+            else:
+                hist_x = np.broadcast_to(x, (ring, *x.shape))
+                hist_theta = np.broadcast_to(theta, (ring, len(theta)))
+                self.omega.fill(1)
+            self.hist_pos.from_numpy(np.ascontiguousarray(hist_x, dtype=real))
+            self.hist_theta.from_numpy(np.ascontiguousarray(hist_theta, dtype=real))
         self.step_index = step
         self._grid_step = -1
 
@@ -205,7 +288,14 @@ class Vicsek(Model):
         theta = np.empty(self.params.n, dtype=self.engine.real)
         x[ids] = self.pos.to_numpy().T
         theta[ids] = self.theta.to_numpy()
-        return {"x": x, "theta": theta}
+        if not self.asynchronous:
+            return {"x": x, "theta": theta}
+        return {"x": x, "theta": theta, "history_x": np.transpose(self.hist_pos.to_numpy(), (0, 2, 1)).copy(),
+                "history_theta": self.hist_theta.to_numpy(), "omega": self.omega.to_numpy()}
+
+    def updated_agents(self) -> np.ndarray:
+        """Boolean mask (agent order) of the agents that updated their heading at the last step."""
+        return self.updated.to_numpy().astype(bool)
 
     def _ensure_grid(self) -> None:
         if self._grid_step != self.step_index:
@@ -219,10 +309,11 @@ class Vicsek(Model):
         for _ in range(steps):
             self._ensure_grid()
             _step(self.step_index, self.seed, p.n, p.radius, p.speed, p.noise, p.box,
-                  math.radians(p.max_turn_deg), inv_g,
-                  RULES[p.rule], boundary_code(p.boundary), p.leader.enabled,
+                  math.radians(p.max_turn_deg), inv_g, p.async_bound,
+                  RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
                   g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order, self.grid.id_sorted,
-                  self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos, self.theta, self.ids)
+                  self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos, self.theta, self.ids,
+                  self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
             self.step_index += 1
 
     def metrics(self) -> dict[str, float]:
@@ -231,6 +322,10 @@ class Vicsek(Model):
         polarization, mean_heading = heading_order(self.theta, p.n)
         out = {"polarization": polarization, "mean_heading": mean_heading}
         out.update(self.graph.compute(p.radius, p.box))
+        e_d, e_theta = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2,
+                                       self.seed, self.step_index)
+        out.update(e_d=e_d, e_d_est=e_d, e_theta=e_theta, e_theta_est=e_theta, de_theta=mean(self.turn, p.n),
+                   updated=float(self.updated.to_numpy().mean()))
         if p.leader.enabled:
             theta = self.state()["theta"].astype(np.float64)
             diff = np.abs((theta[1:] - theta[0] + math.pi) % TWO_PI - math.pi)
@@ -238,20 +333,27 @@ class Vicsek(Model):
         return {name: out[name] for name in self.metric_descriptions}
 
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
+        """Agents coloured by heading; with asynchrony, those that did not update at this step are dimmed."""
         p = self.params
         self._ensure_grid()
         if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
             self._drawing = SubsetDrawing(self.grid, selected)
         rows = self._rows(self._drawing.ids, len(selected))
+        directions = np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32)
+        colors = None
+        if self.asynchronous:
+            dim = np.where(rows[:, 3] > 0, 1.0, 0.3)[:, None]
+            colors = (heading_colors(directions) * dim).astype(np.uint8)
         leader = leader_direction = None
         if p.leader.enabled:
-            x0, y0, th0 = self._rows(self._leader_id, 1)[0]
+            x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
         return Frame(
             positions=rows[:, :2].astype(np.float32),
-            directions=np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32),
+            directions=directions,
             arrow_length=0.5 * p.radius,
+            colors=colors,
             edges=self._drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
             leader=leader,
             leader_direction=leader_direction,
@@ -259,10 +361,11 @@ class Vicsek(Model):
         )
 
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
-        """(m, 3) rows x, y, theta of agents[:m] (grid current)."""
-        out = ti.ndarray(self.pos.dtype, (max(1, m), 3))
+        """(m, 4) rows x, y, theta, updated of agents[:m] (grid current)."""
+        out = ti.ndarray(self.pos.dtype, (max(1, m), 4))
         if m:
-            _frame_rows(m, agents, self.grid.slot_of, self.grid.order, self.grid.pos_sorted, self.theta, out)
+            _frame_rows(m, agents, self.grid.slot_of, self.grid.order, self.grid.pos_sorted, self.theta,
+                        self.updated, out)
         return out.to_numpy()[:m]
 
     def world(self) -> WorldSpec:
