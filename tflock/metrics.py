@@ -143,15 +143,6 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         ti.atomic_max(result[2], degree[s])
 
 
-@ti.kernel
-def _degree_block_sums(degree: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
-    for blk in range(partial.shape[0]):
-        total = 0
-        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-            total += degree[i]
-        partial[blk] = total
-
-
 class NeighbourGraph:
     """Scratch arrays and results of the R-graph metrics for one grid."""
 
@@ -171,7 +162,7 @@ class NeighbourGraph:
         _graph(n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
                self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent, self.size,
                self.degree, self.result)
-        _degree_block_sums(self.degree, n, self.partial)
+        _block_sums(self.degree, n, self.partial)
         clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())
         return {
             "clusters": float(clusters),
@@ -183,8 +174,9 @@ class NeighbourGraph:
 
 @ti.kernel
 def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
+    """partial[b] = sum of values over block b, in the type of `partial` (i64 sums of ints stay exact)."""
     for blk in range(partial.shape[0]):
-        total = 0.0
+        total = partial[blk] * 0
         for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
             total += values[i]
         partial[blk] = total
