@@ -12,7 +12,8 @@ A run config is a TOML file (or a nested dict of the same shape)::
 
 ``load_config`` reads it, applies overrides (the CLI's repeatable ``--set key=value``) and validates it; every
 mistake becomes a :class:`ConfigError` with one line naming the key, what is allowed and what was given.
-A new model adds its params schema to ``PARAMS_SCHEMAS`` and a line to ``MODEL_DESCRIPTIONS``, nothing else.
+A new model adds its params schema and description with :func:`register_model` (from its own params module,
+imported at the end of this one), nothing else.
 """
 
 from __future__ import annotations
@@ -235,6 +236,9 @@ MODEL_DESCRIPTIONS: dict[str, str] = {
     "vicsek": "Vicsek family: vector / average (Jadbabaie) / relative / laplacian rules, leader, turn limit",
 }
 """One line per model, for ``tflock models``."""
+
+MODEL_IMPLEMENTATIONS: dict[str, str] = {"vicsek": "tflock.models.vicsek:Vicsek"}
+"""The class of each model, as ``"module:Class"`` (imported only when a model is built)."""
 
 
 class Config(BaseModel):
@@ -544,3 +548,27 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(item) for item in value) + "]"
     raise TypeError(f"cannot write {type(value).__name__} as a TOML value: {value!r}")
+
+
+def register_model(name: str, schema: type[BaseModel], description: str, implementation: str) -> None:
+    """Add a model: its params schema, a one-line description and its class as ``"module:Class"``.
+
+    Called by each ``tflock/models/<name>_params.py`` (Taichi-free), which this module imports at load time.
+    """
+    PARAMS_SCHEMAS[name] = schema
+    MODEL_DESCRIPTIONS[name] = description
+    MODEL_IMPLEMENTATIONS[name] = implementation
+
+
+def _import_params_modules() -> None:
+    import pkgutil
+    from importlib import import_module
+
+    import tflock.models
+
+    for info in pkgutil.iter_modules(tflock.models.__path__):
+        if info.name.endswith("_params"):
+            import_module(f"tflock.models.{info.name}")
+
+
+_import_params_modules()

@@ -19,13 +19,8 @@ import numpy as np
 
 from tflock.config import Config, config_to_dict, config_to_toml, load_config, parse_override
 from tflock.engine import EngineInfo, init_engine
+from tflock.models import model_class
 from tflock.rng import Stream, hash_np
-
-
-def _model_class(name: str) -> type:
-    from tflock.models.vicsek import Vicsek
-
-    return {"vicsek": Vicsek}[name]
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
@@ -73,7 +68,7 @@ class Simulation:
             config = load_config(config, model=model, overrides=merged)
         self.config: Config = config
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
-        self.model = _model_class(config.model)(config.params, config.seed, self.engine)
+        self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self.recorder = None

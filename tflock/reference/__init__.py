@@ -1,5 +1,8 @@
 """Plain NumPy versions of every model step and metric: the test oracle (O(N^2), small N only).
 
+This module holds the shared geometry and the Vicsek family; other models have a submodule each
+(``tflock.reference.adaptive``, ``tflock.reference.potential``, ...).
+
 Written for clarity, straight from the equations in DESIGN.md section 3, with no neighbour grid: every pair is
 tested. Random draws come from :mod:`tflock.rng` with the same keys the kernels use, so a kernel and this
 reference started from the same state must agree step by step. Arithmetic runs in the dtype of the inputs
