@@ -199,6 +199,79 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
     out.print(summary.config_toml, markup=False, highlight=False)
 
 
+def _int_list(text: str, what: str) -> list[int]:
+    try:
+        values = [int(float(v)) for v in text.split(",") if v.strip()]
+    except ValueError:
+        fail(f"--{what}: expected comma-separated numbers such as 1e3,1e4, got {text!r}")
+    if not values or min(values) <= 0:
+        fail(f"--{what}: every value must be > 0, got {text!r}")
+    return values
+
+
+@app.command()
+def bench(
+    models_: Annotated[str, typer.Option("--models", help="Comma-separated models (default: all).")] = "",
+    sizes: Annotated[str, typer.Option(help="Comma-separated N values.")] = "1e3,1e4,1e5,1e6",
+    states: Annotated[str, typer.Option(help="uniform, developed or both.")] = "uniform,developed",
+    develop_steps: Annotated[int, typer.Option(help="Steps before timing the developed state.")] = 300,
+    repeats: Annotated[int, typer.Option(help="Timed steps per case.")] = 10,
+    threads: Annotated[str, typer.Option(help="Comma-separated CPU thread counts (0 = all cores).")] = "0",
+    arch: Annotated[str, typer.Option(help="cpu | cuda | vulkan | auto.")] = "cpu",
+    precision: Annotated[str, typer.Option(help="f32 | f64.")] = "f32",
+    log: Annotated[bool, typer.Option("--log/--no-log", help="Also time logging a 50k-agent frame.")] = False,
+    peers: Annotated[bool, typer.Option("--peers/--no-peers", help="Time the NumPy and cKDTree peers.")] = True,
+    prefix: Annotated[Path | None, typer.Option("--out", help="Results prefix (.json/.csv/.png added).")] = None,
+) -> None:
+    """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under benchmarks/."""
+    from tflock.bench import STATES, BenchCase, cases, run_in_subprocess, write_results
+
+    names = [m for m in models_.split(",") if m] or list(MODEL_DESCRIPTIONS)
+    for name in names:
+        if name not in MODEL_DESCRIPTIONS:
+            fail(f"--models: must be among {', '.join(MODEL_DESCRIPTIONS)}, got {name!r}")
+    wanted_states = [s for s in states.split(",") if s]
+    if not wanted_states or any(s not in STATES for s in wanted_states):
+        fail(f"--states: must be among {', '.join(STATES)}, got {states!r}")
+    if arch not in ("cpu", "cuda", "vulkan", "auto") or precision not in ("f32", "f64"):
+        fail(f"--arch / --precision: allowed cpu|cuda|vulkan|auto and f32|f64, got {arch!r} / {precision!r}")
+    if repeats < 1 or develop_steps < 0:
+        fail("--repeats must be >= 1 and --develop-steps >= 0")
+    todo: list[BenchCase] = []
+    for t in _int_list(threads, "threads") if threads != "0" else [0]:
+        todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
+                      repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers)
+    prefix = prefix or Path("benchmarks") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
+    results = []
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, disable=not err.is_terminal) as progress:
+        task = progress.add_task("bench", total=len(todo))
+        for case in todo:
+            progress.update(task, description=f"{case.model} n={case.n:,} {case.state}")
+            try:
+                results.append(run_in_subprocess(case))
+            except RuntimeError as e:
+                err.print(f"[yellow]skipped:[/] {e}", highlight=False)
+            progress.advance(task)
+    table = Table(title="tflock bench (ms per step: median [min-max]; workload = mean neighbours per agent)")
+    for column in ("model", "N", "state", "neighbours", "ms/step", "agent-steps/s", "build", "interact",
+                   "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
+        table.add_column(column, justify="right")
+    for r in results:
+        c = r.case
+        opt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+        peer_text = ", ".join(f"{k} {v['ratio']:.1f}x" for k, v in r.peers.items()) or "-"
+        table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
+                      f"{r.ms_median:.2f} [{r.ms_min:.2f}-{r.ms_max:.2f}]", f"{r.agent_steps_per_s:.3g}",
+                      opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
+                      f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)
+    (out if out.is_terminal else Console(width=200)).print(table)
+    if not results:
+        fail("no benchmark case completed")
+    for path in write_results(results, prefix, "tflock " + " ".join(sys.argv[1:])):
+        out.print(f"wrote {path}", highlight=False)
+
+
 def main() -> None:
     """Console-script entry point."""
     app()

@@ -297,6 +297,11 @@ class Vicsek(Model):
         """Boolean mask (agent order) of the agents that updated their heading at the last step."""
         return self.updated.to_numpy().astype(bool)
 
+    def build_neighbours(self) -> None:
+        """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
+        self._grid_step = -1
+        self._ensure_grid()
+
     def _ensure_grid(self) -> None:
         if self._grid_step != self.step_index:
             self.grid.build(self.pos, self.ids)

@@ -1,0 +1,325 @@
+"""Scaling benchmarks: `tflock bench`.
+
+Each case (model, N, start state, threads, arch, precision, logging on or off) runs in a fresh subprocess, so
+engine settings can differ between cases and peak memory is the case's own. A case builds the model's default
+config at N agents with the default density kept (the box side scales as N^(1/dim)), steps it to the wanted
+state, then times single steps. The first step (JIT compile) is reported apart. Per case: ms per step (median,
+min, max over repeats), agent-steps per second, a breakdown (neighbour-grid build, interactions = the rest of the
+step, one metrics pass, one logged frame), the mean neighbour count (the workload: a step's cost follows it),
+peak resident memory and the model's device bytes per agent.
+
+Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
+as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
+takes under ~10 s a step) and, for Vicsek when scipy is installed, a cKDTree + sparse-matrix step written the way
+the common minimal scripts do it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+STATES = ("uniform", "developed")
+PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less than this
+
+
+@dataclass(frozen=True)
+class BenchCase:
+    """One measurement: the model at `n` agents in a start state, with engine settings."""
+
+    model: str
+    n: int
+    state: str = "uniform"  # uniform: from the initial state; developed: after `develop_steps` steps
+    develop_steps: int = 300
+    repeats: int = 10
+    threads: int = 0
+    arch: str = "cpu"
+    precision: str = "f32"
+    log: bool = False  # time a logged frame (max_agents drawn) on top of the step
+    log_agents: int = 50_000
+    peers: bool = True
+
+
+@dataclass
+class BenchResult:
+    """What a case measured (times in ms unless named otherwise)."""
+
+    case: BenchCase
+    engine: str = ""
+    box: float = 0.0
+    mean_neighbors: float = 0.0
+    first_step_s: float = 0.0  # JIT compile included
+    setup_s: float = 0.0  # model construction, initial metrics included
+    ms_median: float = 0.0
+    ms_min: float = 0.0
+    ms_max: float = 0.0
+    agent_steps_per_s: float = 0.0
+    build_ms: float | None = None
+    interactions_ms: float | None = None
+    metrics_ms: float = 0.0
+    logging_ms: float | None = None
+    peak_rss_mb: float = 0.0
+    device_bytes_per_agent: float = 0.0
+    peers: dict[str, dict[str, float]] = field(default_factory=dict)  # name -> {"ms": .., "ratio": peer / tflock}
+
+    def row(self) -> dict[str, Any]:
+        """Flat dict for CSV / tables."""
+        out = {**asdict(self.case), **{k: v for k, v in asdict(self).items() if k not in ("case", "peers")}}
+        for name, peer in self.peers.items():
+            out[f"{name}_ms"] = peer["ms"]
+            out[f"{name}_ratio"] = peer["ratio"]
+        return out
+
+
+def case_config(case: BenchCase) -> dict[str, Any]:
+    """The model's default config at N = case.n, same density (box side scaled by (n / n0)^(1/dim))."""
+    from tflock.config import load_config
+
+    default = load_config(model=case.model)
+    params = default.params
+    dim = getattr(params, "dim", 2)
+    box = float(params.box) * (case.n / params.n) ** (1.0 / dim)
+    return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 1,
+            "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
+            "params": {"n": case.n, "box": box},
+            "log": {"max_agents": case.log_agents, "max_edges": 0, "every": 1, "metrics_every": 1}}
+
+
+def _device_bytes(obj: object, seen: set[int] | None = None, depth: int = 0) -> int:
+    """Bytes of the Taichi ndarrays an object holds (and the objects it holds, two levels down)."""
+    import taichi as ti
+
+    itemsize = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8, ti.u32: 4, ti.u8: 1}
+    seen = set() if seen is None else seen
+    total = 0
+    for value in vars(obj).values():
+        if id(value) in seen:
+            continue
+        seen.add(id(value))
+        if isinstance(value, ti.Ndarray):
+            total += int(np.prod(value.shape)) * itemsize.get(value.dtype, 8)
+        elif depth < 2 and hasattr(value, "__dict__") and not isinstance(value, type):
+            total += _device_bytes(value, seen, depth + 1)
+    return total
+
+
+def _timed(fn: Callable[[], None], sync: Callable[[], None]) -> float:
+    t0 = time.perf_counter()
+    fn()
+    sync()
+    return 1e3 * (time.perf_counter() - t0)
+
+
+def _ckdtree_vicsek_step(x: np.ndarray, theta: np.ndarray, params: Any, rng: np.random.Generator):
+    """One Vicsek step the way minimal scripts write it: cKDTree pairs within R as a sparse matrix, the mean of
+    exp(i theta) over neighbours (itself included), uniform noise, move, wrap."""
+    import scipy.sparse
+    from scipy.spatial import cKDTree
+
+    box = params.box if params.boundary == "periodic" else None
+    tree = cKDTree(x, boxsize=box)
+    dist = tree.sparse_distance_matrix(tree, max_distance=params.radius, output_type="coo_matrix")
+    data = np.exp(1j * theta[dist.col])
+    neigh = scipy.sparse.coo_matrix((data, (dist.row, dist.col)), shape=(len(x), len(x)))
+    s = np.squeeze(np.asarray(neigh.tocsr().sum(axis=1)))  # the diagonal (distance 0) is itself
+    theta = np.angle(s) + params.noise * (rng.random(len(x)) - 0.5)
+    x = x + params.speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    if box is not None:
+        x %= box
+    return x, theta
+
+
+def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float) -> dict[str, dict[str, float]]:
+    """Peers on the model's current state (Vicsek only: the references of other models come with them)."""
+    if model.name != "vicsek":
+        return {}
+    from tflock import reference
+
+    state = model.state()
+    x, theta = state["x"].astype(np.float64), state["theta"].astype(np.float64)
+    params, n = model.params, len(theta)
+    peers: dict[str, dict[str, float]] = {}
+    if n <= 4000:  # O(N^2) memory and time: ~1 s at 4000
+        t0 = time.perf_counter()
+        reference.vicsek_step(x, theta, model.step_index, params, model.seed)
+        ms = 1e3 * (time.perf_counter() - t0)
+        peers["numpy_reference"] = {"ms": ms, "ratio": ms / ms_tflock}
+    try:
+        import scipy  # noqa: F401
+    except ImportError:
+        return peers
+    expected_s = 2e-6 * n * max(1.0, mean_neighbors)  # ~2 us per neighbour pair on this class of machine
+    if expected_s < PEER_BUDGET_S:
+        rng = np.random.default_rng(0)
+        times = []
+        for _ in range(3 if expected_s < 1 else 1):
+            t0 = time.perf_counter()
+            _ckdtree_vicsek_step(x, theta, params, rng)
+            times.append(1e3 * (time.perf_counter() - t0))
+        ms = statistics.median(times)
+        peers["ckdtree_sparse"] = {"ms": ms, "ratio": ms / ms_tflock}
+    return peers
+
+
+def run_case(case: BenchCase) -> BenchResult:
+    """Measure one case in this process (the engine is initialised with the case's settings)."""
+    import taichi as ti
+
+    from tflock.simulation import Simulation
+
+    result = BenchResult(case=case)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        record = Path(tmp) / "bench.rrd" if case.log else False
+        sim = Simulation(case_config(case), record=record)
+        model = sim.model
+        result.engine = f"{sim.engine.arch}, {sim.engine.threads} threads, {sim.engine.precision}"
+        result.box = float(model.params.box)
+        result.setup_s = time.perf_counter() - t0
+        result.first_step_s = _timed(lambda: model.advance(1), ti.sync) / 1e3
+        if case.state == "developed":
+            model.advance(case.develop_steps)
+        steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
+        result.ms_median = statistics.median(steps)
+        result.ms_min, result.ms_max = min(steps), max(steps)
+        result.agent_steps_per_s = case.n / (result.ms_median / 1e3)
+        if hasattr(model, "build_neighbours"):
+            builds = [_timed(model.build_neighbours, ti.sync) for _ in range(max(3, case.repeats // 2))]
+            result.build_ms = statistics.median(builds)
+            result.interactions_ms = max(0.0, result.ms_median - result.build_ms)
+        metrics: dict[str, float] = {}
+
+        def measure() -> None:
+            metrics.update(model.metrics())
+
+        result.metrics_ms = _timed(measure, ti.sync)
+        result.mean_neighbors = float(metrics.get("mean_neighbors", float("nan")))
+        if case.log:
+            result.logging_ms = _timed(lambda: sim.recorder.log_frame(
+                model.step_index, model.frame(sim._selected, 0)), ti.sync)
+        result.device_bytes_per_agent = _device_bytes(model) / case.n
+        if case.peers:
+            result.peers = _time_peers(model, result.ms_median, result.mean_neighbors)
+        sim.close()
+    result.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return result
+
+
+def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
+    """Run a case in a fresh Python process (its own engine settings and memory)."""
+    proc = subprocess.run([sys.executable, "-m", "tflock.bench", json.dumps(asdict(case))], capture_output=True,
+                          text=True, timeout=timeout_s)
+    if proc.returncode != 0:
+        tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"bench case {case.model} n={case.n} {case.state} failed: {tail}")
+    data = json.loads(proc.stdout.strip().splitlines()[-1])
+    data["case"] = BenchCase(**data["case"])
+    return BenchResult(**data)
+
+
+def machine() -> dict[str, Any]:
+    """Where the numbers come from."""
+    import taichi as ti
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gb": round(os.sysconf("SC_PAGE_SIZE")
+                                                                      * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "taichi": ".".join(map(str, ti.__version__)), "platform": platform.platform()}
+
+
+def cases(models: Iterable[str], sizes: Iterable[int], states: Iterable[str], **common: Any) -> list[BenchCase]:
+    """The cross product, smallest N first."""
+    return [BenchCase(model=m, n=n, state=s, **common) for n in sorted(sizes) for m in models for s in states]
+
+
+def write_results(results: list[BenchResult], out: Path, command: str) -> list[Path]:
+    """JSON (with the machine and the command), CSV, and a log-log PNG when matplotlib is installed."""
+    import csv
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d"),
+               "results": [{**asdict(r), "case": asdict(r.case)} for r in results]}
+    json_path = out.with_suffix(".json")
+    json_path.write_text(json.dumps(payload, indent=1) + "\n")
+    rows = [r.row() for r in results]
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    csv_path = out.with_suffix(".csv")
+    with open(csv_path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows(rows)
+    written = [json_path, csv_path]
+    png = plot(results, out.with_suffix(".png"))
+    if png is not None:
+        written.append(png)
+    return written
+
+
+def plot(results: list[BenchResult], path: Path) -> Path | None:
+    """agent-steps/s and ms/step against N, log-log, one line per (model, state); None without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    groups: dict[tuple[str, str, bool], list[BenchResult]] = {}
+    for r in results:
+        groups.setdefault((r.case.model, r.case.state, r.case.log), []).append(r)
+    styles = {"numpy_reference": ":", "ckdtree_sparse": "--"}
+    for index, ((model, state, log), rs) in enumerate(groups.items()):
+        color = f"C{index % 10}"
+        rs.sort(key=lambda r: r.case.n)
+        n = [r.case.n for r in rs]
+        nb = ", ".join(f"{r.mean_neighbors:.0f}" for r in rs)
+        label = f"{model} {state}{' +log' if log else ''} (neighbours {nb})"
+        left.loglog(n, [r.agent_steps_per_s for r in rs], "o-", color=color, label=label)
+        right.loglog(n, [r.ms_median for r in rs], "o-", color=color, label=label)
+        for name in sorted({p for r in rs for p in r.peers}):
+            with_peer = [r for r in rs if name in r.peers]
+            right.loglog([r.case.n for r in with_peer], [r.peers[name]["ms"] for r in with_peer], "x",
+                         linestyle=styles.get(name, "-."), color=color, label=f"{model} {state}: {name}")
+    left.set(xlabel="N agents", ylabel="agent-steps / s", title="throughput")
+    right.set(xlabel="N agents", ylabel="ms / step (median)", title="step time")
+    for ax in (left, right):
+        ax.grid(True, which="both", alpha=0.3)
+    left.legend(fontsize=7)
+    right.legend(fontsize=7)
+    engine = results[0].engine if results else ""
+    fig.suptitle(f"tflock bench ({engine}; workload: default density, neighbours per agent in the legend)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _worker(argv: list[str]) -> None:
+    case = BenchCase(**json.loads(argv[0]))
+    result = run_case(case)
+    print(json.dumps({**asdict(result), "case": asdict(case)}))
+
+
+if __name__ == "__main__":
+    _worker(sys.argv[1:])
