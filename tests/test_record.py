@@ -309,3 +309,20 @@ def test_open_viewer_web(tmp_path: Path) -> None:
     finally:
         if child.poll() is None:
             child.kill()
+
+
+def test_markers_are_drawn_on_their_own_entities(tmp_path: Path) -> None:
+    from tflock.record import Marker
+
+    path = tmp_path / "markers.rrd"
+    rr.set_strict_mode(True)
+    rec = Recorder(model="m", config_toml="a = 1\n", world=WorldSpec(2, "open", 10.0), metrics={}, path=path)
+    for step in range(3):
+        rec.log_frame(step, Frame(positions=np.zeros((4, 2), np.float32), directions=np.ones((4, 2), np.float32),
+                                  arrow_length=1.0, markers=[Marker("virtual_agent", np.array([step, 0.0]),
+                                                                    direction=np.array([-1.0, 0.0]),
+                                                                    circle=25.0)]))
+    rec.close()
+    summary = read_recording(path)
+    for entity in ("/world/virtual_agent", "/world/virtual_agent/heading", "/world/virtual_agent/range"):
+        assert entity in summary.entities

@@ -97,6 +97,19 @@ class WorldSpec:
 
 
 @dataclass
+class Marker:
+    """A named object drawn on its own entity ``world/<name>``: a point, an optional arrow and an optional circle
+    of radius ``circle`` around it (2D; e.g. the virtual agent and its interaction radius)."""
+
+    name: str
+    position: np.ndarray  # (dim,)
+    direction: np.ndarray | None = None  # (dim,) arrow, scaled by the frame's arrow_length * 1.5
+    circle: float | None = None  # radius of a circle drawn around the point (2D only)
+    color: tuple[int, int, int] = (255, 255, 255)
+    size: float = 2.5  # point radius, in multiples of the frame's agent radius
+
+
+@dataclass
 class Frame:
     """What is drawn at one step (already subsampled by the caller). Arrays are converted to float32."""
 
@@ -108,6 +121,7 @@ class Frame:
     leader: np.ndarray | None = None  # (dim,) leader position, drawn bigger in white at world/leader
     radius: float = 0.3  # point radius in scene units
     leader_direction: np.ndarray | None = None  # (dim,) leader heading; drawn as an arrow when given
+    markers: list[Marker] = field(default_factory=list)  # other objects, each at world/<name> (same set each frame)
 
 
 def heading_colors(directions: np.ndarray) -> np.ndarray:
@@ -358,6 +372,24 @@ class Recorder:
                 rec.log(LEADER_HEADING, Arrows(origins=lead[: len(vec)], vectors=vec, colors=LEADER_COLOR,
                                                radii=0.6 * radius))
                 self._leader_heading_drawn = True
+        for marker in frame.markers:
+            self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
+
+    def _log_marker(self, marker: Marker, Points: type, Arrows: type, Strips: type, radius: float,
+                    arrow_length: float) -> None:
+        dim = self.world.dim
+        entity = f"world/{marker.name}"
+        where = _f32(marker.name, np.reshape(marker.position, (1, -1)), (1, dim))
+        self.rec.log(entity, Points(where, colors=marker.color, radii=marker.size * radius))
+        if marker.direction is not None:
+            vec = _f32(marker.name, np.reshape(marker.direction, (1, -1)), (1, dim)) * np.float32(1.5 * arrow_length)
+            self.rec.log(f"{entity}/heading", Arrows(origins=where, vectors=vec, colors=marker.color,
+                                                    radii=0.6 * radius))
+        if marker.circle is not None and dim == 2:
+            angle = np.linspace(0.0, 2 * math.pi, 97, dtype=np.float32)
+            ring = where[0] + np.float32(marker.circle) * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+            self.rec.log(f"{entity}/range", Strips([ring.astype(np.float32)], colors=(*marker.color, 140),
+                                                   radii=rr.Radius.ui_points(1.0)))
 
     def log_metrics(self, step: int, values: Mapping[str, float]) -> None:
         """Log one value per metric at ``step`` and append a row to the metrics table.
