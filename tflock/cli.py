@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tflock.config import MODEL_DESCRIPTIONS, ConfigError, default_config_toml, load_config
+from tflock.config import MODEL_DESCRIPTIONS, ConfigError, default_config_toml, load_config, tomllib
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Large-N flocking simulation on Taichi, recorded to Rerun.")
@@ -46,6 +46,9 @@ def sim(
     spawn: Annotated[bool, typer.Option("--spawn", help="Stream to a new native viewer.")] = False,
     connect: Annotated[str | None, typer.Option(help="Stream to a viewer: rerun+http://host:9876/proxy.")] = None,
     no_log: Annotated[bool, typer.Option("--no-log", help="Record nothing (metrics still printed).")] = False,
+    checkpoint_every: Annotated[int, typer.Option(help="Write a checkpoint every K steps (0 = never).")] = 0,
+    checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint file (default: beside the recording).")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Continue a run from its checkpoint (.npz).")] = None,
 ) -> None:
     """Run a simulation: `tflock sim` runs the default Vicsek config and records it under recordings/."""
     t_start = time.perf_counter()
@@ -53,8 +56,21 @@ def sim(
     for key, value in (("steps", steps), ("seed", seed), ("engine.arch", arch), ("engine.threads", threads)):
         if value is not None:
             overrides.append(f"{key}={value!r}" if isinstance(value, str) else f"{key}={value}")
+    if checkpoint_every < 0:
+        fail(f"--checkpoint-every: must be >= 0, got {checkpoint_every}")
+    if resume is not None:
+        if config is not None or model is not None or seed is not None:
+            fail("--resume: the checkpoint carries the config; only --steps, --threads and --set log.* may change")
+        if any(not (o.startswith(("log.", "steps=", "engine.threads="))) for o in overrides):
+            fail("--resume: only --steps, --threads and --set log.* may change a resumed run")
     try:
-        cfg = load_config(config, model=model, overrides=overrides)
+        if resume is not None:
+            from tflock.simulation import read_checkpoint
+
+            saved = tomllib.loads(str(read_checkpoint(resume)["config_toml"]))
+            cfg = load_config(saved, overrides=overrides)
+        else:
+            cfg = load_config(config, model=model, overrides=overrides)
     except ConfigError as e:
         fail(str(e))
     if out_path is not None and out_path.suffix != ".rrd":
@@ -64,10 +80,15 @@ def sim(
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # SLURM, timeout, docker stop: finish the file
     signal.signal(signal.SIGINT, signal.default_int_handler)  # also when started in the background
     from tflock.engine import EngineError
-    from tflock.simulation import Simulation
+    from tflock.simulation import Simulation, default_recording_path
 
+    if checkpoint_every and checkpoint is None:
+        base = out_path or (Path(cfg.log.out) if cfg.log.out else default_recording_path(cfg.model))
+        checkpoint = base.with_suffix(".checkpoint.npz")
     try:
-        simulation = Simulation(cfg, record=record, spawn=spawn, connect=connect)
+        simulation = Simulation(cfg if resume is None else None, overrides=None if resume is None else overrides,
+                                resume=resume, record=record, spawn=spawn, connect=connect, checkpoint=checkpoint,
+                                checkpoint_every=checkpoint_every)
     except OSError as e:
         fail(e.strerror or str(e))
     except (EngineError, RuntimeError) as e:
@@ -83,7 +104,8 @@ def sim(
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), console=err,
                       disable=not err.is_terminal, transient=False) as progress:
-            task = progress.add_task(f"{cfg.model} n={cfg.params.n}", total=cfg.steps, rate="")
+            task = progress.add_task(f"{cfg.model} n={cfg.params.n}", total=cfg.steps, rate="",
+                                     completed=simulation.step_index)
             t_last = time.perf_counter()
 
             def tick(step: int) -> None:
@@ -94,7 +116,7 @@ def sim(
                     progress.update(task, completed=step, rate=f"{rate:,.0f} steps/s")
                     t_last = now
 
-            if cfg.steps > 0:
+            if cfg.steps > simulation.step_index:
                 t0 = time.perf_counter()
                 simulation.step(1, tick)  # the first step compiles the step kernels
                 first_step_s = time.perf_counter() - t0

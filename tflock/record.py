@@ -207,7 +207,10 @@ class Recorder:
         connect: str | None = None,
         metrics_table: Path | None = None,
         application_id: str = "tflock",
+        recording_id: str | None = None,
     ) -> None:
+        """``recording_id``: give a resumed run's new file the id of the first one, so that the viewer shows the
+        segments (``rerun first.rrd resumed.rrd``) as one recording on the same timelines."""
         for name in metrics:
             if not _METRIC_NAME.match(name):
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
@@ -232,7 +235,7 @@ class Recorder:
         if connect:
             sinks.append(rr.GrpcSink(connect))
         self.enabled = bool(sinks) or spawn
-        self.rec = rr.RecordingStream(application_id, default_enabled=self.enabled)
+        self.rec = rr.RecordingStream(application_id, recording_id=recording_id, default_enabled=self.enabled)
         self.rec.set_log_time_enabled(False)
         self._csv_file: IO[str] | None = None
         try:

@@ -10,6 +10,9 @@ Metrics are computed at step 0 and every ``log.metrics_every`` steps (and at the
 
 from __future__ import annotations
 
+import os
+import uuid
+import zipfile
 from collections.abc import Callable, Mapping
 from datetime import datetime
 from pathlib import Path
@@ -17,7 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from tflock.config import Config, config_to_dict, config_to_toml, load_config, parse_override
+from tflock.config import (
+    Config,
+    ConfigError,
+    config_to_dict,
+    config_to_toml,
+    load_config,
+    parse_override,
+    tomllib,
+)
 from tflock.engine import EngineInfo, init_engine
 from tflock.models import model_class
 from tflock.rng import Stream, hash_np
@@ -39,6 +50,24 @@ def drawn_subset(n: int, max_agents: int, seed: int) -> np.ndarray:
     return np.sort(np.argpartition(keys, max_agents)[:max_agents])
 
 
+CHECKPOINT_FORMAT = 1
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The arrays of a checkpoint written by :meth:`Simulation.save_checkpoint` (no pickles are loaded)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"--resume: checkpoint not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            checkpoint = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        raise ConfigError(f"--resume: {path} is not a tflock checkpoint ({e})") from None
+    if int(checkpoint.get("format", -1)) != CHECKPOINT_FORMAT or "config_toml" not in checkpoint:
+        raise ConfigError(f"--resume: {path} is not a tflock checkpoint (format {CHECKPOINT_FORMAT})")
+    return checkpoint
+
+
 def default_recording_path(model: str) -> Path:
     return Path("recordings") / f"{model}-{datetime.now():%Y%m%d-%H%M%S}.rrd"
 
@@ -49,13 +78,22 @@ class Simulation:
     ``config`` is a TOML path, a nested dict, a :class:`Config`, or None for the model's defaults. Keyword
     overrides are nested like the TOML (``params={"noise": 0.3}``, ``steps=100``) or dotted strings in
     ``overrides`` (``["params.noise=0.3"]``, the CLI's ``--set``). ``record`` is False, True (a file under
-    ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer.
+    ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer. ``checkpoint`` /
+    ``checkpoint_every``: write :meth:`save_checkpoint` there every k steps; ``resume``: continue from such a file
+    (bit-identical to the uninterrupted run; a recording goes to a new file with the same recording id).
     """
 
     def __init__(self, config: str | Path | Mapping[str, Any] | Config | None = None, *,
                  model: str | None = None, overrides: list[str] | Mapping[str, Any] | None = None,
                  record: bool | str | Path = False, spawn: bool = False, connect: str | None = None,
-                 **fields: Any) -> None:
+                 resume: str | Path | None = None, checkpoint: str | Path | None = None,
+                 checkpoint_every: int = 0, **fields: Any) -> None:
+        saved = None
+        if resume is not None:  # the checkpoint carries the config
+            saved = read_checkpoint(resume)
+            if config is not None or model is not None:
+                raise ConfigError("--resume: the checkpoint carries its config; do not also give a config or model")
+            config = tomllib.loads(str(saved["config_toml"]))
         if isinstance(config, Config) and (overrides or fields or model):
             config = config_to_dict(config)
         if not isinstance(config, Config):
@@ -73,9 +111,15 @@ class Simulation:
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self.recorder = None
         self.files: list[Path] = []
+        self.recording_id = uuid.uuid4().hex
+        self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
+        self.checkpoint_every = checkpoint_every
+        if saved is not None:
+            self._restore(saved)
         if record or spawn or connect:
             self._open_recorder(record, spawn, connect)
-        self._observe(force=True)
+        if saved is None:
+            self._observe(force=True)
 
     @property
     def step_index(self) -> int:
@@ -91,7 +135,8 @@ class Simulation:
         table = path.with_suffix(".metrics.csv") if path is not None else None
         self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
                                  world=self.model.world(), metrics=self.model.metric_descriptions,
-                                 path=path, spawn=spawn, connect=connect, metrics_table=table)
+                                 path=path, spawn=spawn, connect=connect, metrics_table=table,
+                                 recording_id=self.recording_id)
         self.files = [p for p in (path, table) if p is not None]
 
     def _observe(self, force: bool = False) -> None:
@@ -112,6 +157,8 @@ class Simulation:
             self.model.advance(1)
             last = self.model.step_index == self.config.steps
             self._observe(force=last)
+            if self.checkpoint_every and self.checkpoint_path and self.model.step_index % self.checkpoint_every == 0:
+                self.save_checkpoint(self.checkpoint_path)
             if progress is not None:
                 progress(self.model.step_index)
 
@@ -133,6 +180,35 @@ class Simulation:
         """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``."""
         names = ["step", "time", *self.model.metric_descriptions]
         return {name: np.array([row[name] for row in self._rows]) for name in names}
+
+    def save_checkpoint(self, path: str | Path) -> Path:
+        """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
+        atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        table = self.metrics()
+        arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
+        arrays.update({f"metrics__{k}": v for k, v in table.items()})
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays, step=np.int64(self.model.step_index),
+                     config_toml=np.str_(config_to_toml(self.config)), recording_id=np.str_(self.recording_id),
+                     format=np.int64(CHECKPOINT_FORMAT))
+        os.replace(tmp, path)
+        if path not in self.files:
+            self.files.append(path)
+        return path
+
+    def _restore(self, checkpoint: Mapping[str, Any]) -> None:
+        arrays = {k.removeprefix("model__"): v for k, v in checkpoint.items() if k.startswith("model__")}
+        try:
+            self.model.restore(arrays, int(checkpoint["step"]))
+        except ValueError as e:
+            raise ConfigError(f"--resume: {e}") from None
+        columns = {k.removeprefix("metrics__"): v for k, v in checkpoint.items() if k.startswith("metrics__")}
+        self._rows = [{name: float(column[i]) for name, column in columns.items()}
+                      for i in range(len(columns["step"]))]
+        self.recording_id = str(checkpoint["recording_id"])
 
     def close(self) -> None:
         """Finish the recording (idempotent)."""

@@ -1,10 +1,10 @@
-"""The interface every model implements, and helpers shared by the models' drawing code."""
-
+"""The interface every model implements."""
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 
 import numpy as np
+import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.record import Frame, WorldSpec
@@ -51,3 +51,21 @@ class Model(ABC):
     @abstractmethod
     def world(self) -> WorldSpec:
         """Geometry of the world for the recorder."""
+
+    def checkpoint(self) -> dict[str, np.ndarray]:
+        """Every array the model owns, exactly as held (the agents' arrangement included): with the step counter
+        and the config, enough to continue bit for bit (the random draws are keyed by seed and step)."""
+        return {name: value.to_numpy() for name, value in vars(self).items() if isinstance(value, ti.Ndarray)}
+
+    def restore(self, arrays: Mapping[str, np.ndarray], step: int) -> None:
+        """Load arrays written by :meth:`checkpoint` (same config) and set the step counter."""
+        for name, value in vars(self).items():
+            if isinstance(value, ti.Ndarray):
+                if name not in arrays or tuple(arrays[name].shape) != tuple(value.shape):
+                    raise ValueError(f"checkpoint does not match the model: array {name!r} missing or misshaped")
+                value.from_numpy(np.ascontiguousarray(arrays[name]))
+        self.step_index = step
+        self.invalidate()
+
+    def invalidate(self) -> None:  # noqa: B027 (an optional hook: models without derived data need nothing)
+        """Forget data derived from the state (e.g. a neighbour grid) after the state was replaced."""

@@ -297,6 +297,9 @@ class Vicsek(Model):
         """Boolean mask (agent order) of the agents that updated their heading at the last step."""
         return self.updated.to_numpy().astype(bool)
 
+    def invalidate(self) -> None:
+        self._grid_step = -1
+
     def build_neighbours(self) -> None:
         """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
         self._grid_step = -1
