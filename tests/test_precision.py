@@ -17,7 +17,8 @@ def test_oracle_tests_pass_at_f32():
     tests = Path(__file__).parent
     env = {**os.environ, "TFLOCK_TEST_PRECISION": "f32"}
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                             str(tests / "test_oracle.py"), str(tests / "test_rng.py")],
+                             str(tests / "test_oracle.py"), str(tests / "test_rng.py"),
+                             str(tests / "test_formation.py")],
                             env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
     assert " passed" in result.stdout

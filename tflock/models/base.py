@@ -53,17 +53,32 @@ class Model(ABC):
         """Geometry of the world for the recorder."""
 
     def checkpoint(self) -> dict[str, np.ndarray]:
-        """Every array the model owns, exactly as held (the agents' arrangement included): with the step counter
-        and the config, enough to continue bit for bit (the random draws are keyed by seed and step)."""
-        return {name: value.to_numpy() for name, value in vars(self).items() if isinstance(value, ti.Ndarray)}
-
-    def restore(self, arrays: Mapping[str, np.ndarray], step: int) -> None:
-        """Load arrays written by :meth:`checkpoint` (same config) and set the step counter."""
+        """Everything the model holds, exactly as held: its ndarrays (alone or in lists, e.g. double buffers,
+        the agents' arrangement included) and its plain number attributes (e.g. which buffer is current). With the
+        config this is enough to continue bit for bit: the random draws are keyed by (seed, step)."""
+        out: dict[str, np.ndarray] = {}
         for name, value in vars(self).items():
             if isinstance(value, ti.Ndarray):
-                if name not in arrays or tuple(arrays[name].shape) != tuple(value.shape):
-                    raise ValueError(f"checkpoint does not match the model: array {name!r} missing or misshaped")
+                out[name] = value.to_numpy()
+            elif isinstance(value, (list, tuple)) and value and all(isinstance(v, ti.Ndarray) for v in value):
+                out.update({f"{name}.{k}": v.to_numpy() for k, v in enumerate(value)})
+            elif isinstance(value, (bool, int, float)):
+                out[f"attr.{name}"] = np.asarray(value)
+        return out
+
+    def restore(self, arrays: Mapping[str, np.ndarray], step: int) -> None:
+        """Load what :meth:`checkpoint` wrote (same config) and set the step counter."""
+        expected = self.checkpoint()
+        if set(arrays) != set(expected) or any(arrays[k].shape != v.shape for k, v in expected.items()):
+            raise ValueError("the checkpoint does not match this model and config (arrays differ)")
+        for name, value in vars(self).items():
+            if isinstance(value, ti.Ndarray):
                 value.from_numpy(np.ascontiguousarray(arrays[name]))
+            elif isinstance(value, (list, tuple)) and value and all(isinstance(v, ti.Ndarray) for v in value):
+                for k, v in enumerate(value):
+                    v.from_numpy(np.ascontiguousarray(arrays[f"{name}.{k}"]))
+            elif isinstance(value, (bool, int, float)):
+                setattr(self, name, type(value)(arrays[f"attr.{name}"]))
         self.step_index = step
         self.invalidate()
 

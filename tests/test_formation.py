@@ -1,0 +1,357 @@
+"""The virtual-agent formation model (papers/004): kernel against the NumPy oracle, forces, ramps, quantifiers.
+
+Oracle horizons: one step at a time from the oracle's state (the kernel is reset before every step) for 40 steps
+of every Table 1 strategy with communication failure and noise on, tolerance 1e-10 at f64 (2e-4 at f32); and a
+free-running 300-step trajectory at f64 within 1e-8 (forces are clamped, so rounding differences stay small).
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import PRECISION
+
+from tflock.config import ConfigError, default_config_toml, load_config
+from tflock.models.formation import Formation
+from tflock.models.formation_params import FAILED, INSIDE, OUTSIDE, SEPARATION, STRATEGIES
+from tflock.reference import formation as rf
+from tflock.reference import wrap_pi
+
+F64 = PRECISION == "f64"
+TOL = 1e-10 if F64 else 2e-4
+ATOL = 1e-9 if F64 else 2e-4  # hand-built setups: degrees, lengths, phi
+ROOT = Path(__file__).resolve().parents[1]
+DEG = math.radians(1.0)
+
+
+def params(**extra):
+    ov = {f"params.{k}": v for k, v in extra.items()}
+    ov["engine.precision"] = PRECISION
+    return load_config(model="formation", overrides=ov).params
+
+
+def small(strategy, **extra):
+    """60 agents in a 30 x 20 rectangle: neighbours, separations, VAIR crossings within a few dozen steps."""
+    return params(strategy=strategy, n=60, init_length=30.0, init_width=20.0, **extra)
+
+
+def gap(a, b, key, world):
+    d = np.abs(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64))
+    if key == "theta":
+        d = np.abs(wrap_pi(d))
+    elif key == "x":
+        d = np.minimum(d, world - d)
+    return float(d.max())
+
+
+FLOATS = ("x", "theta", "speed", "ramp_from", "ramp_duration")
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+def test_step_matches_reference(engine, strategy):
+    p = small(strategy, fail_prob=0.2, noise_deg=0.5)
+    model = Formation(p, 3, engine)
+    state = rf.initial_state(p, 3)
+    kinds = set()
+    for t in range(40):
+        expected, rule = rf.formation_step(state, t, p, 3)
+        model.set_state(state, t)
+        model.advance(1)
+        got = model.state()
+        for key in FLOATS:
+            assert gap(got[key], expected[key], key, p.world) < TOL, f"{key} differs at step {t}"
+        for key in ("inside", "ramp_start"):
+            assert np.array_equal(got[key], expected[key]), f"{key} differs at step {t}"
+        assert np.array_equal(model.rules(), rule), f"rules differ at step {t}"
+        kinds |= set(rule.tolist())
+        state = expected
+    assert kinds == {SEPARATION, INSIDE, OUTSIDE, FAILED}  # every branch was exercised
+    q = rf.quantifiers(state, 40, p)
+    m = model.metrics()
+    for key, value in q.items():
+        assert m[key] == pytest.approx(value, abs=1e-9 if F64 else 1e-4), key
+
+
+@pytest.mark.skipif(not F64, reason="free-running trajectories are compared at f64")
+def test_trajectory_matches_reference(engine):
+    p = small("S-2.4", noise_deg=0.3, fail_prob=0.1)
+    model = Formation(p, 11, engine)
+    state = rf.initial_state(p, 11)
+    model.advance(300)
+    for t in range(300):
+        state, _ = rf.formation_step(state, t, p, 11)
+    got = model.state()
+    for key in FLOATS:
+        assert gap(got[key], state[key], key, p.world) < 1e-8, key
+    assert np.array_equal(got["inside"], state["inside"])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Forces on hand-built two-agent setups (noise 0, no failure). The VA starts at (100, 100), heading 180 degrees.
+
+
+def two_agents(engine, strategy, x, theta_deg, **extra):
+    """A two-agent model set to positions x (relative to the VA) and headings; returns the turns (degrees) of one
+    step and the rules."""
+    p = params(strategy=strategy, n=2, **extra)
+    model = Formation(p, 0, engine)
+    x = np.asarray(x, dtype=np.float64) + rf.va_position(0, p)
+    theta = np.radians(np.asarray(theta_deg, dtype=np.float64))
+    model.set_state({"x": x, "theta": theta}, 0)
+    model.advance(1)
+    turn = np.degrees(wrap_pi(model.state()["theta"].astype(np.float64) - theta))
+    return turn, model.rules()
+
+
+def test_va_alignment_alone(engine):
+    # S-1.1 inside the VAIR: Fav only. Far apart agents (no neighbours) turn toward 180 degrees, at most 1 degree
+    turn, rules = two_agents(engine, "S-1.1", [[5.0, 0.0], [-5.0, 10.0]], [90.0, 179.5])
+    assert turn == pytest.approx([1.0, 0.5], abs=ATOL)  # the paper's example: 159.5 -> 160 is a 0.5 turn
+    assert list(rules) == [INSIDE, INSIDE]
+
+
+def test_va_cohesion_alone(engine):
+    # S-1.2 outside the VAIR: Fcv only. An agent 40 to the right of the VA heading up turns left toward it (+1);
+    # one 40 above heading 0 turns right toward it (-1)
+    turn, rules = two_agents(engine, "S-1.2", [[40.0, 0.0], [0.0, 40.0]], [90.0, 0.0])
+    assert turn == pytest.approx([1.0, -1.0], abs=ATOL)
+    assert list(rules) == [OUTSIDE, OUTSIDE]
+
+
+def test_alignment_alone(engine):
+    # S-1.1 outside with alpha_cv = 0: Fa only; two agents 4 apart (> min separation) head toward each other's
+    # heading
+    turn, _ = two_agents(engine, "S-1.1", [[60.0, 0.0], [60.0, 4.0]], [0.0, 30.0], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([1.0, -1.0], abs=ATOL)
+    turn, _ = two_agents(engine, "S-1.1", [[60.0, 0.0], [60.0, 4.0]], [0.0, 0.4], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([0.4, -0.4], abs=ATOL)
+
+
+def test_cohesion_alone_and_zones(engine):
+    # S-1.3 outside with alpha_cv = 0: Fc only; agents 4 apart on a horizontal line, heading up, turn toward each
+    # other: the left one right (-1), the right one left (+1)
+    turn, _ = two_agents(engine, "S-1.3", [[60.0, 0.0], [64.0, 0.0]], [90.0, 90.0], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([-1.0, 1.0], abs=ATOL)
+    # S-2.3: 4.5 apart lies in the cohesion ring [4, 5.5]: the same turns
+    turn, _ = two_agents(engine, "S-2.3", [[60.0, 0.0], [64.5, 0.0]], [90.0, 90.0], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([-1.0, 1.0], abs=ATOL)
+    # S-2.3: 3 apart lies in the alignment ring, where cohesion does not act: no force at all
+    turn, _ = two_agents(engine, "S-2.3", [[60.0, 0.0], [63.0, 0.0]], [90.0, 90.0], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([0.0, 0.0], abs=ATOL)
+    # S-2.1 outside with alpha_cv = 0: Fa only, and a neighbour in the cohesion ring is not aligned with
+    turn, _ = two_agents(engine, "S-2.1", [[60.0, 0.0], [64.5, 0.0]], [0.0, 30.0], **{"weights.va_cohesion": 0.0})
+    assert turn == pytest.approx([0.0, 0.0], abs=ATOL)
+
+
+def test_weighted_mean(engine):
+    # eq. (3), S-1.1 outside: Fa asks +1 (toward 30 degrees), Fcv asks -1 (toward the VA, behind on the left):
+    # F = (3 * 1 - 1 * 1) / 4 = 0.5 with alpha_a = 3, alpha_cv = 1
+    turn, _ = two_agents(engine, "S-1.1", [[60.0, 0.0], [60.0, 4.0]], [270.0, 300.0],
+                         **{"weights.align": 3.0, "weights.va_cohesion": 1.0})
+    assert turn[0] == pytest.approx(0.5, abs=ATOL)
+
+
+def test_separation_overrides(engine):
+    # 1.5 apart (< 2.5): each turns away from the other by 2 degrees, whatever the other forces ask (S-1.4 outside:
+    # all four active, and for agent 0 every one of them asks -1 degree)
+    turn, rules = two_agents(engine, "S-1.4", [[60.0, 0.0], [58.5, 0.0]], [270.0, 200.0])
+    assert turn == pytest.approx([2.0, -2.0], abs=ATOL)
+    assert list(rules) == [SEPARATION, SEPARATION]
+    # inside the VAIR too, and with a smaller cap
+    turn, _ = two_agents(engine, "S-2.2", [[5.0, 0.0], [6.0, 0.0]], [170.0, 10.0], separation_turn_deg=0.5)
+    assert turn == pytest.approx([0.5, -0.5], abs=ATOL)
+
+
+def test_turns_never_exceed_caps(engine):
+    p = params(strategy="S-1.4", n=200, init_length=40.0, init_width=30.0, max_turn_deg=1.5,
+               separation_turn_deg=3.0)
+    model = Formation(p, 5, engine)
+    seen = set()
+    for _ in range(30):
+        before = model.state()["theta"].astype(np.float64)
+        model.advance(1)
+        turn = np.abs(wrap_pi(model.state()["theta"].astype(np.float64) - before))
+        rules = model.rules()
+        seen |= set(rules.tolist())
+        assert turn[rules == SEPARATION].max(initial=0) <= math.radians(3.0) + ATOL
+        assert turn[rules != SEPARATION].max(initial=0) <= math.radians(1.5) + ATOL
+    assert {SEPARATION, INSIDE, OUTSIDE} <= seen
+
+
+def test_full_failure_goes_straight(engine):
+    p = params(strategy="S-1.4", n=100, init_length=30.0, init_width=20.0, fail_prob=1.0)
+    model = Formation(p, 2, engine)
+    start = model.state()
+    model.advance(50)
+    end = model.state()
+    assert np.array_equal(end["theta"], start["theta"])
+    assert np.all(model.rules() == FAILED)
+
+
+def test_noise_is_bounded_and_used(engine):
+    p = params(strategy="S-2.2", n=100, init_length=30.0, init_width=20.0, fail_prob=1.0, noise_deg=0.7)
+    model = Formation(p, 2, engine)
+    before = model.state()["theta"].astype(np.float64)
+    model.advance(1)
+    turn = np.degrees(wrap_pi(model.state()["theta"].astype(np.float64) - before))
+    assert np.abs(turn).max() <= 0.7 + ATOL
+    assert np.abs(turn).max() > 0.5 and turn.min() < 0 < turn.max()  # eps ~ U[-delta, delta]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Speed ramps (eqs. 1-2)
+
+
+def test_speed_ramps_stay_in_range(engine):
+    p = params()  # the paper's setup, S-2.2
+    model = Formation(p, 1, engine)
+    ramping = 0
+    for _ in range(400):
+        model.advance(1)
+        speed = model.state()["speed"].astype(np.float64)
+        assert speed.min() >= p.va_speed - ATOL and speed.max() <= p.out_speed + ATOL
+        ramping += int(np.sum((speed > p.va_speed) & (speed < p.out_speed)))
+    assert ramping > 0  # agents entered the VAIR and slowed down gradually
+
+
+def test_entering_ramp_is_linear(engine):
+    # one agent about to enter the VAIR from behind, heading with the VA: its speed falls linearly from 1.4 to 1
+    p = params(strategy="S-1.1", n=1, ramp_jitter=0.0)
+    model = Formation(p, 0, engine)
+    x = rf.va_position(0, p) + [25.2, 0.0]
+    model.set_state({"x": x[None, :], "theta": np.array([math.pi])}, 0)
+    speeds = []
+    for _ in range(40):
+        model.advance(1)
+        speeds.append(float(model.state()["speed"][0]))
+    state = model.state()
+    start = int(state["ramp_start"][0])
+    duration = p.vair / p.out_speed  # T with rnd = 0
+    assert state["ramp_duration"][0] == pytest.approx(duration)
+    for t, v in enumerate(speeds):
+        expected = p.out_speed - (p.out_speed - p.va_speed) * min(1.0, max(0.0, (t + 1 - start) / duration))
+        assert v == pytest.approx(expected, abs=ATOL)
+    assert speeds[-1] == p.va_speed
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Quantifiers
+
+
+def quantifiers_of(engine, x_rel, theta, step=0, **extra):
+    p = params(n=len(x_rel), **extra)
+    model = Formation(p, 0, engine)
+    x = np.asarray(x_rel, dtype=np.float64) + rf.va_position(step, p)
+    x -= p.world * np.floor(x / p.world)
+    model.set_state({"x": x, "theta": np.asarray(theta, dtype=np.float64)}, step)
+    return model.metrics(), model
+
+
+def test_phi_rho_ring_and_line(engine):
+    a = 2 * math.pi * np.arange(12) / 12
+    ring = 10.0 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    m, _ = quantifiers_of(engine, ring, np.full(12, math.pi))
+    assert m["phi"] == pytest.approx(0.0, abs=ATOL)
+    assert m["rho"] == pytest.approx(10.0, abs=ATOL)
+    line = np.stack([np.arange(1, 13) * 2.0, np.zeros(12)], axis=1)  # in a row behind the VA
+    m, _ = quantifiers_of(engine, line, np.full(12, math.pi))
+    assert m["phi"] == pytest.approx(1.0, abs=ATOL)
+    assert m["rho"] == pytest.approx(13.0, abs=ATOL)
+    # the ring across the torus edge (VA at x = 5 after 95 steps): minimum-image distances
+    m, _ = quantifiers_of(engine, ring, np.full(12, math.pi), step=95)
+    assert m["phi"] == pytest.approx(0.0, abs=ATOL) and m["rho"] == pytest.approx(10.0, abs=ATOL)
+    half = ring[:6]  # angles 0..150 degrees: |mean exp(i Theta)| = |sum| / 6
+    m, _ = quantifiers_of(engine, half, np.full(6, math.pi))
+    assert m["phi"] == pytest.approx(abs(np.exp(1j * a[:6]).mean()), abs=ATOL)
+
+
+def test_desired_formation_and_tau(engine):
+    a = 2 * math.pi * np.arange(12) / 12
+    ring = 10.0 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    theta = np.full(12, math.pi) + np.radians(np.linspace(-4.9, 4.9, 12))
+    m, model = quantifiers_of(engine, ring, theta, step=7)
+    assert m["df"] == 1.0 and m["tau"] == 7.0  # DF holds when set: tau is that step
+    theta[3] = math.pi + math.radians(5.1)  # one agent out of beta_lim
+    m, model = quantifiers_of(engine, ring, theta, step=7, tau_cap=50)
+    assert m["df"] == 0.0 and m["tau"] == 50.0  # not reached: the cap
+    outside = ring.copy()
+    outside[0] = [30.0, 0.0]  # one agent out of the VAIR
+    m, _ = quantifiers_of(engine, outside, np.full(12, math.pi))
+    assert m["df"] == 0.0 and m["inside"] == pytest.approx(11 / 12)
+
+
+def test_paper_setup_reaches_desired_formation(engine):
+    p = params()  # S-2.2 with Figure 4a's weights
+    model = Formation(p, 0, engine)
+    for _ in range(30):
+        model.advance(50)
+        if model.tau_reached() is not None:
+            break
+    tau = model.tau_reached()
+    assert tau is not None and 200 < tau < 1500
+    m = model.metrics()
+    assert m["tau"] == tau and m["inside"] == 1.0 and m["aligned"] == 1.0 and m["mean_speed"] == pytest.approx(1.0)
+    model.advance(20)  # the formation holds: aligned agents at |va| inside the VAIR
+    assert model.metrics()["df"] == 1.0 and model.metrics()["tau"] == tau
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Configs, drawing, determinism
+
+
+def test_default_config_file_is_current():
+    assert (ROOT / "configs" / "formation.toml").read_text() == default_config_toml("formation")
+
+
+def test_paper_configs_load():
+    names = sorted((ROOT / "configs" / "papers").glob("formation-*.toml"))
+    strategies = {load_config(path).params.strategy for path in names}
+    assert strategies == set(STRATEGIES)
+
+
+@pytest.mark.parametrize("override, key", [
+    ({"params.world": 150.0}, "params.world"),
+    ({"params.min_separation": 6.0}, "params.min_separation"),
+    ({"params.align_radius": 2.0}, "params.align_radius"),
+    ({"params.out_speed": 0.5}, "params.out_speed"),
+    ({"params.strategy": "S-3.1"}, "params.strategy"),
+])
+def test_bad_params_are_clear_errors(override, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        load_config(model="formation", overrides=override)
+
+
+def test_frame_draws_va_and_rules(engine):
+    p = params(n=50, init_length=30.0, init_width=20.0)
+    model = Formation(p, 0, engine)
+    model.advance(3)
+    selected = np.array([0, 7, 19, 42])
+    frame = model.frame(selected, 100)
+    state = model.state()
+    assert np.allclose(frame.positions, state["x"][selected], atol=1e-4)
+    assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]), atol=1e-5)
+    (marker,) = frame.markers
+    assert marker.name == "virtual_agent" and marker.circle == p.vair
+    assert np.allclose(marker.position, rf.va_position(3, p))
+    from tflock.models.formation import RULE_COLORS
+    assert np.array_equal(frame.colors, RULE_COLORS[model.rules()[selected]])
+
+
+def test_recording_and_state_round_trip(make_sim, tmp_path):
+    from tflock.record import verify_recording
+
+    path = tmp_path / "formation.rrd"
+    sim = make_sim(model="formation", steps=5, record=path, params={"n": 30})
+    sim.run()
+    sim.close()
+    assert verify_recording(path)
+    table = sim.metrics()
+    assert set(table) >= {"tau", "df", "phi", "rho"} and len(table["phi"]) == 6
+    # a restored state continues the same trajectory
+    state = sim.model.state()
+    sim.model.advance(10)
+    later = sim.model.state()
+    sim.model.set_state(state, 5)
+    sim.model.advance(10)
+    assert np.array_equal(sim.model.state()["x"], later["x"])

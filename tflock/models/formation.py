@@ -1,0 +1,463 @@
+"""Virtual-agent parallel formations (DESIGN.md section 3.4; papers/004, "reactive model").
+
+A virtual agent (VA) starts at the centre of a square torus of side ``world`` and moves with fixed heading
+theta_a and speed |va|: a(t) = centre + t |va| (cos, sin) theta_a, wrapped (computed in float64 from t, so it
+never drifts). Agents start uniform in an ``init_length`` x ``init_width`` rectangle whose front side is centred
+on the VA, behind it (section 4), headings uniform in [0, 2 pi). One synchronous step t -> t+1 for agent i:
+
+1. neighbours from x(t) on the cell grid (minimum image). S-1: j != i within the vision radius R. S-2
+   (non-overlapping rings, section 4, Figure 3b): zone of separation d < min_separation, of alignment
+   min_separation <= d < align_radius, of cohesion align_radius <= d <= R. The paper gives no alignment-zone
+   radius: ``align_radius`` (4.0 by default, the rings then split [2.5, 5.5] in equal halves) is ours.
+2. forces, each the turn toward its target angle clamped to +-``max_turn_deg`` (1 degree: "maximum value 1.00
+   decimal degree per time unit", with the worked example 159.5 -> 160 giving 0.5): Fa toward the circular mean
+   heading of the alignment neighbours, Fc toward their centre of mass (cohesion neighbours), Fav toward theta_a,
+   Fcv toward the VA (minimum image). Which forces are active is Table 1: by the strategy's last digit and by
+   whether |x_i - a(t)| <= VAIR. A force with nobody to act on (Fa or Fc without neighbours in its zone) drops out.
+3. eq. (3): F = sum(alpha_k F_k) / sum(alpha_k) over the active forces (F = 0 if none, or all weights 0).
+   eq. (4): if some neighbour is closer than min_separation, F = Fs alone: the turn away from the nearest one
+   (lowest id on ties), clamped to +-``separation_turn_deg`` (2 degrees).
+4. communication failure: with probability p (``Stream.UPDATE``) the agent ignores all stimuli this step, F = 0
+   (its speed ramp still runs: it is the agent's own controller). eq. (7): theta(t+1) = theta + F + eps,
+   eps ~ U[-delta, delta] (``Stream.NOISE``), wrapped into [0, 2 pi).
+5. speed, eqs. (1)-(2): crossing the VAIR (inside at x(t) differs from the stored flag) starts a linear ramp
+   from the current speed v_ini at t_s = t toward |va| (entering) or |vout| (leaving), lasting
+   dt_i = max(1, T + rnd), T = VAIR / v_ini ("time to move from the VAIR boundary to the VA"),
+   rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper: gamma ~ T; drawn from stream 300). The printed
+   eq. (1), |v| = |va| - (|v_ini| - |va|)(t - t_f)/dt_i with t_f = t_s + dt_i, is that ramp (t - t_f <= 0);
+   the printed eq. (2) runs backwards (it ends at |va|), so we read it as the same ramp toward |vout|:
+   |v| = |vout| - (|vout| - |v_ini|)(t_f - t)/dt_i. The speed for the move t -> t+1 is
+   v_ini + (target - v_ini) min(1, (t + 1 - t_s)/dt_i), exactly the target after the ramp, so speeds stay in
+   [|va|, |vout|]. Initial speeds are settled: |va| inside the VAIR, |vout| outside.
+6. move (eq. 5): x(t+1) = x(t) + |v_i| (cos, sin) theta(t+1), wrapped into the torus.
+
+Quantifiers (section 4): tau, the first step at which the desired formation of Definition 1 holds (all agents
+inside the VAIR, |wrap(theta_a - theta_i)| < beta_lim, speed |va|), checked inside the step kernel every step
+and reported as min(tau, tau_cap), or tau_cap while not reached; phi = |mean exp(i Theta_j)| (eq. 6), Theta_j
+the angle of agent j seen from the VA; rho, the mean distance to the VA; the DF flag of the current step.
+
+The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each element);
+they are double-buffered: the step reads one set and writes the other in this step's cell order.
+"""
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import taichi as ti
+
+from tflock.engine import EngineInfo
+from tflock.metrics import BLOCK, n_blocks
+from tflock.models.base import Model
+from tflock.models.formation_params import (
+    ALIGN,
+    COHESION,
+    FAILED,
+    INSIDE,
+    OUTSIDE,
+    RAMP_STREAM,
+    SEPARATION,
+    TABLE_1,
+    VA_ALIGN,
+    VA_COHESION,
+    FormationParams,
+)
+from tflock.neighbors import CellGrid, load_ivec, load_vec, span_count, stencil_span
+from tflock.record import Frame, Marker, WorldSpec
+from tflock.reference import formation as ref
+from tflock.rng import Stream, uniform_ti
+from tflock.space import PERIODIC, displacement, wrap_periodic
+
+TWO_PI = 2 * math.pi
+# slots of the constants array
+R2, ALIGN2, SEP2, VAIR2, WORLD, CAP, SEP_CAP, W_A, W_C, W_AV, W_CV, VA_HEADING, FAIL, NOISE, VA_SPEED, OUT_SPEED, \
+    JITTER, BETA, N_CONSTS = range(19)
+# rows of the float and int state arrays
+THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
+IN_FLAG, RAMP_START = range(2)
+RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
+VA_COLOR = (255, 210, 0)
+SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
+
+
+@ti.func
+def wrap_pi(a):
+    """Angle into [-pi, pi)."""
+    return a - TWO_PI * ti.floor((a + math.pi) / TWO_PI)
+
+
+@ti.func
+def wrap_two_pi(a):
+    """Angle into [0, 2 pi)."""
+    a -= TWO_PI * ti.floor(a / TWO_PI)
+    if a >= TWO_PI or a < 0:
+        a = 0.0
+    return a
+
+
+@ti.func
+def unit_force(target, theta, cap):
+    """The turn toward `target`, at most `cap` either way."""
+    return ti.math.clamp(wrap_pi(target - theta), -cap, cap)
+
+
+@ti.func
+def df_holds(q, theta, speed, va, c: ti.template()):
+    """Definition 1 for one agent: inside the VAIR, parallel to the VA within beta_lim, at the VA's speed."""
+    d = displacement(q, va, c[WORLD], PERIODIC)
+    aligned = ti.abs(wrap_pi(c[VA_HEADING] - theta)) < c[BETA]
+    settled = ti.abs(speed - c[VA_SPEED]) <= SETTLED_TOL * c[VA_SPEED]
+    return d.norm_sqr() <= c[VAIR2] and aligned and settled
+
+
+@ti.kernel
+def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
+          zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
+          nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
+          id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+          payload: ti.types.ndarray(), f_old: ti.types.ndarray(), i_old: ti.types.ndarray(),
+          pos_new: ti.types.ndarray(), f_new: ti.types.ndarray(), i_new: ti.types.ndarray(),
+          ids_new: ti.types.ndarray(), rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
+    for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
+        th = f_old[THETA, order[s]]
+        payload[0, s] = ti.cos(th)
+        payload[1, s] = ti.sin(th)
+    bad[0] = 0
+    va = ti.Vector([va_x, va_y])
+    va_next = ti.Vector([next_x, next_y])
+    for s in range(n):
+        i = id_sorted[s]
+        e = order[s]
+        p = load_vec(pos_sorted, s, 2)
+        cell = load_ivec(coords_sorted, s, 2)
+        th = f_old[THETA, e]
+        a_cos = 0.0
+        a_sin = 0.0
+        a_count = 0.0
+        c_x = 0.0
+        c_y = 0.0
+        c_count = 0.0
+        r2, sep2, align2, world = c[R2], c[SEP2], c[ALIGN2], c[WORLD]  # locals: kept in registers in the loop
+        best = sep2  # nearest neighbour closer than the minimum separation
+        best_id = -1
+        away = ti.Vector([0.0, 0.0])
+        for o in ti.static(range(span_count(PERIODIC, 2))):
+            lo, hi, _ = stencil_span(cell, o, nc, n_buckets, PERIODIC, 2)
+            for k in range(start[lo], start[hi]):
+                d = displacement(p, load_vec(pos_sorted, k, 2), world, PERIODIC)
+                d2 = d.norm_sqr()
+                seen = ti.select(d2 <= r2, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
+                wa = seen
+                wc = seen
+                if ti.static(zones == 2):  # rings: alignment [sep, align), cohesion [align, R]
+                    wa = seen * ti.select(d2 >= sep2, 1.0, 0.0) * ti.select(d2 < align2, 1.0, 0.0)
+                    wc = seen * ti.select(d2 >= align2, 1.0, 0.0)
+                a_cos += wa * payload[0, k]
+                a_sin += wa * payload[1, k]
+                a_count += wa
+                c_x += wc * d[0]
+                c_y += wc * d[1]
+                c_count += wc
+                if d2 <= best and k != s:
+                    j = id_sorted[k]
+                    if d2 < best or best_id < 0 or j < best_id:
+                        best = d2
+                        best_id = j
+                        away = -d
+        dva = displacement(p, va, c[WORLD], PERIODIC)
+        inside = dva.norm_sqr() <= c[VAIR2]
+        active = ti.select(inside, in_set, out_set)
+        num = 0.0
+        den = 0.0
+        if (active & ALIGN) != 0 and a_count > 0:
+            num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
+            den += c[W_A]
+        if (active & COHESION) != 0 and c_count > 0:
+            num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
+            den += c[W_C]
+        if (active & VA_ALIGN) != 0:
+            num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
+            den += c[W_AV]
+        if (active & VA_COHESION) != 0:
+            num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
+            den += c[W_CV]
+        force = 0.0
+        if den > 0:
+            force = num / den  # eq. (3)
+        r = ti.select(inside, INSIDE, OUTSIDE)
+        if best_id >= 0 and best < c[SEP2]:  # eq. (4)
+            force = unit_force(ti.atan2(away[1], away[0]), th, c[SEP_CAP])
+            r = SEPARATION
+        if uniform_ti(seed, t, i, Stream.UPDATE) < c[FAIL]:
+            force = 0.0
+            r = FAILED
+        eps = c[NOISE] * (2.0 * uniform_ti(seed, t, i, Stream.NOISE) - 1.0)
+        new = wrap_two_pi(th + force + eps)  # eqs. (5), (7)
+        # speed ramps, eqs. (1)-(2)
+        flag = ti.select(inside, 1, 0)
+        v_from = f_old[RAMP_FROM, e]
+        t_start = i_old[RAMP_START, e]
+        duration = f_old[RAMP_DURATION, e]
+        if flag != i_old[IN_FLAG, e]:
+            v_from = f_old[SPEED, e]
+            t_start = t
+            period = ti.sqrt(c[VAIR2]) / v_from
+            jitter = c[JITTER] * period * (2.0 * uniform_ti(seed, t, i, RAMP_STREAM) - 1.0)
+            duration = ti.max(1.0, period + jitter)
+        target = ti.select(inside, c[VA_SPEED], c[OUT_SPEED])
+        progress = (t + 1 - t_start) / duration
+        speed = target
+        if progress < 1:
+            speed = v_from + (target - v_from) * progress
+        q = wrap_periodic(p + speed * ti.Vector([ti.cos(new), ti.sin(new)]), c[WORLD])
+        pos_new[0, s] = q[0]
+        pos_new[1, s] = q[1]
+        f_new[THETA, s] = new
+        f_new[SPEED, s] = speed
+        f_new[RAMP_FROM, s] = v_from
+        f_new[RAMP_DURATION, s] = duration
+        i_new[IN_FLAG, s] = flag
+        i_new[RAMP_START, s] = t_start
+        ids_new[s] = i
+        rule[i] = r
+        if not df_holds(q, new, speed, va_next, c):
+            ti.atomic_add(bad[0], 1)
+    if bad[0] == 0 and tau[0] < 0:
+        tau[0] = t + 1
+
+
+@ti.kernel
+def _quantifier_blocks(n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: float, pos: ti.types.ndarray(),
+                       f: ti.types.ndarray(), rule: ti.types.ndarray(), partial: ti.types.ndarray()):
+    """Per block of agents: sum cos Theta, sin Theta, distance to the VA, inside, aligned, speed, separation, and
+    agents outside the desired formation (storage order: deterministic block sums)."""
+    va = ti.Vector([va_x, va_y])
+    for blk in range(partial.shape[0]):
+        acc = ti.Vector([0.0] * 8)
+        for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+            p = load_vec(pos, e, 2)
+            d = displacement(va, p, c[WORLD], PERIODIC)  # VA -> agent
+            dist = d.norm()
+            th = f[THETA, e]
+            inside = d.norm_sqr() <= c[VAIR2]
+            acc[0] += ti.select(dist > 0, d[0] / dist, 1.0)  # cos Theta, Theta = atan2(0, 0) = 0 at the VA
+            acc[1] += ti.select(dist > 0, d[1] / dist, 0.0)
+            acc[2] += dist
+            acc[3] += ti.select(inside, 1.0, 0.0)
+            acc[4] += ti.select(ti.abs(wrap_pi(c[VA_HEADING] - th)) < c[BETA], 1.0, 0.0)
+            acc[5] += f[SPEED, e]
+            acc[6] += ti.select(rule[e] == SEPARATION, 1.0, 0.0)  # agent order: a count, exact whatever the order
+            acc[7] += ti.select(df_holds(p, th, f[SPEED, e], va, c), 0.0, 1.0)
+        for k in ti.static(range(8)):
+            partial[blk, k] = acc[k]
+
+
+@ti.kernel
+def _tau_now(t: ti.i32, n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: float, pos: ti.types.ndarray(),
+             f: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
+    """tau = t if the desired formation holds now, else 'not reached' (-1)."""
+    bad[0] = 0
+    va = ti.Vector([va_x, va_y])
+    for e in range(n):
+        if not df_holds(load_vec(pos, e, 2), f[THETA, e], f[SPEED, e], va, c):
+            ti.atomic_add(bad[0], 1)
+    tau[0] = ti.select(bad[0] == 0, t, -1)
+
+
+@ti.kernel
+def _frame_rows(m: ti.i32, n: ti.i32, selected: ti.types.ndarray(), ids: ti.types.ndarray(),
+                where: ti.types.ndarray(), pos: ti.types.ndarray(), f: ti.types.ndarray(), rule: ti.types.ndarray(),
+                out: ti.types.ndarray()):
+    for e in range(n):
+        where[ids[e]] = e
+    for r in range(m):
+        a = selected[r]
+        e = where[a]
+        out[r, 0] = pos[0, e]
+        out[r, 1] = pos[1, e]
+        out[r, 2] = f[THETA, e]
+        out[r, 3] = rule[a]
+
+
+class Formation(Model):
+    """Reactive agents converging to a parallel formation inside the VAIR of a moving virtual agent (papers/004).
+
+    See the module docstring for the step and the readings of eqs. (1)-(4), (7) and Table 1.
+    """
+
+    name = "formation"
+
+    def __init__(self, params: FormationParams, seed: int, engine: EngineInfo) -> None:
+        super().__init__(params, seed, engine)
+        n, real = params.n, engine.real
+        self.metric_descriptions = {
+            "tau": f"tau: first step of the desired formation (Definition 1), capped at {params.tau_cap}",
+            "df": "1 when the agents are in the desired formation now, else 0",
+            "phi": "phi: angular uniformity around the VA (eq. 6); 0 uniform around it, 1 all in one direction",
+            "rho": "rho: mean distance to the VA",
+            "inside": "fraction of agents inside the VAIR",
+            "aligned": "fraction of agents within beta_lim of the VA heading",
+            "mean_speed": "mean speed",
+            "separating": "fraction of agents driven by separation (Fs) at the last step",
+        }
+        ftype = ti.f32 if real == np.float32 else ti.f64
+        self.pos = [ti.ndarray(ftype, (2, n)) for _ in range(2)]
+        self.f = [ti.ndarray(ftype, (4, n)) for _ in range(2)]  # theta, speed, ramp_from, ramp_duration
+        self.i = [ti.ndarray(ti.i32, (2, n)) for _ in range(2)]  # inside flag, ramp_start
+        self.ids = [ti.ndarray(ti.i32, n) for _ in range(2)]
+        self.cur = 0
+        self.payload = ti.ndarray(ftype, (2, n))
+        self.rule = ti.ndarray(ti.i32, n)  # what drove each agent at the last step (agent order)
+        self.where = ti.ndarray(ti.i32, n)
+        self.bad = ti.ndarray(ti.i32, 1)
+        self.tau = ti.ndarray(ti.i32, 1)
+        self.partial = ti.ndarray(ftype, (n_blocks(n), 8))
+        self.consts = ti.ndarray(ftype, N_CONSTS)
+        self.consts.from_numpy(self._constants().astype(real))
+        self.grid = CellGrid(n, 2, "periodic", params.world, params.radius, real)
+        self._zones = int(params.strategy[2])
+        self._out_set, self._in_set = TABLE_1[int(params.strategy[4])]
+        self.set_state(ref.initial_state(params, seed), 0)
+
+    def _constants(self) -> np.ndarray:
+        p = self.params
+        c = np.zeros(N_CONSTS)
+        c[R2], c[ALIGN2], c[SEP2] = p.radius**2, p.align_radius**2, p.min_separation**2
+        c[VAIR2], c[WORLD] = p.vair**2, p.world
+        c[CAP], c[SEP_CAP] = math.radians(p.max_turn_deg), math.radians(p.separation_turn_deg)
+        w = p.weights
+        c[W_A], c[W_C], c[W_AV], c[W_CV] = w.align, w.cohesion, w.va_align, w.va_cohesion
+        c[VA_HEADING] = math.radians(p.va_heading_deg) % TWO_PI
+        c[FAIL], c[NOISE] = p.fail_prob, math.radians(p.noise_deg)
+        c[VA_SPEED], c[OUT_SPEED], c[JITTER] = p.va_speed, p.out_speed, p.ramp_jitter
+        c[BETA] = math.radians(p.beta_lim_deg)
+        return c
+
+    def va_position(self, step: int | None = None) -> np.ndarray:
+        """Position of the virtual agent at `step` (default: now), float64."""
+        return ref.va_position(self.step_index if step is None else step, self.params)
+
+    def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
+        """Replace the state (agent-ordered arrays as :meth:`state` returns them). Without ``speed`` and the ramp
+        arrays, speeds are the settled ones (|va| inside the VAIR, |vout| outside); without ``tau``, tau is `step`
+        if the desired formation holds now, else not reached."""
+        p, real = self.params, self.engine.real
+        x = np.asarray(state["x"], dtype=np.float64)
+        n = p.n
+        if "speed" in state:
+            speed = np.asarray(state["speed"], dtype=np.float64)
+            inside = np.asarray(state["inside"])
+            ramp = (state["ramp_from"], state["ramp_duration"], state["ramp_start"])
+        else:
+            inside = ((ref.to_va(x, step, p) ** 2).sum(axis=1) <= p.vair**2).astype(np.int32)
+            speed = np.where(inside == 1, p.va_speed, p.out_speed)
+            ramp = (speed, np.ones(n), np.full(n, step))
+        k = self.cur
+        self.pos[k].from_numpy(np.ascontiguousarray(x.T, dtype=real))
+        floats = np.stack([np.asarray(state["theta"], dtype=np.float64), speed, ramp[0], ramp[1]])
+        self.f[k].from_numpy(np.ascontiguousarray(floats, dtype=real))
+        self.i[k].from_numpy(np.stack([inside, ramp[2]]).astype(np.int32))
+        self.ids[k].from_numpy(np.arange(n, dtype=np.int32))
+        self.rule.from_numpy(np.where(inside == 1, INSIDE, OUTSIDE).astype(np.int32))
+        self.step_index = step
+        if "tau" in state:
+            self.tau.from_numpy(np.array([int(state["tau"])], dtype=np.int32))
+        else:
+            va = self.va_position(step)
+            _tau_now(step, n, self.consts, va[0], va[1], self.pos[k], self.f[k], self.bad, self.tau)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Agent-ordered snapshot: x, theta, speed, inside, ramp_from, ramp_start, ramp_duration, tau (-1: not
+        reached) and va (the VA position)."""
+        k = self.cur
+        ids = self.ids[k].to_numpy()
+        n = self.params.n
+        x = np.empty((n, 2), dtype=self.engine.real)
+        x[ids] = self.pos[k].to_numpy().T
+        f = np.empty((4, n), dtype=self.engine.real)
+        f[:, ids] = self.f[k].to_numpy()
+        i = np.empty((2, n), dtype=np.int32)
+        i[:, ids] = self.i[k].to_numpy()
+        return {"x": x, "theta": f[THETA], "speed": f[SPEED], "inside": i[IN_FLAG], "ramp_from": f[RAMP_FROM],
+                "ramp_start": i[RAMP_START], "ramp_duration": f[RAMP_DURATION],
+                "tau": np.array(int(self.tau.to_numpy()[0])), "va": self.va_position()}
+
+    def rules(self) -> np.ndarray:
+        """What drove each agent (agent order) at the last step: SEPARATION, INSIDE, OUTSIDE or FAILED."""
+        return self.rule.to_numpy()
+
+    def tau_reached(self) -> int | None:
+        """The first step of the desired formation (uncapped), or None if not reached yet."""
+        tau = int(self.tau.to_numpy()[0])
+        return None if tau < 0 else tau
+
+    def build_neighbours(self) -> None:
+        """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
+        self.grid.build(self.pos[self.cur], self.ids[self.cur])
+
+    def advance(self, steps: int) -> None:
+        p = self.params
+        g = self.grid.geometry
+        for _ in range(steps):
+            t = self.step_index
+            a, b = self.cur, 1 - self.cur
+            self.grid.build(self.pos[a], self.ids[a])
+            va, va_next = self.va_position(t), self.va_position(t + 1)
+            _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
+                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, self.grid.start,
+                  self.grid.order, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
+                  self.payload, self.f[a], self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b],
+                  self.rule, self.bad, self.tau)
+            self.cur = b
+            self.step_index += 1
+
+    def metrics(self) -> dict[str, float]:
+        p = self.params
+        n = p.n
+        k = self.cur
+        va = self.va_position()
+        _quantifier_blocks(n, self.consts, va[0], va[1], self.pos[k], self.f[k], self.rule, self.partial)
+        s = self.partial.to_numpy().astype(np.float64).sum(axis=0)
+        tau = self.tau_reached()
+        return {
+            "tau": float(p.tau_cap if tau is None else min(tau, p.tau_cap)),
+            "df": float(s[7] == 0),
+            "phi": float(math.hypot(s[0], s[1]) / n),
+            "rho": float(s[2] / n),
+            "inside": float(s[3] / n),
+            "aligned": float(s[4] / n),
+            "mean_speed": float(s[5] / n),
+            "separating": float(s[6] / n),
+        }
+
+    def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
+        """(m, 4) rows x, y, theta, rule of agents[:m]."""
+        k = self.cur
+        out = ti.ndarray(self.pos[k].dtype, (max(1, m), 4))
+        if m:
+            _frame_rows(m, self.params.n, agents, self.ids[k], self.where, self.pos[k], self.f[k], self.rule, out)
+        return out.to_numpy()[:m]
+
+    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
+        """Agents coloured by what drives them this step (red: separation, green: inside the VAIR, blue: outside,
+        grey: communication failure) with heading arrows; the VA with its heading and VAIR circle."""
+        p = self.params
+        ids = ti.ndarray(ti.i32, max(1, len(selected)))
+        if len(selected):
+            ids.from_numpy(np.asarray(selected, dtype=np.int32))
+        rows = self._rows(ids, len(selected))
+        directions = np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32)
+        va_heading = ref.va_direction(p).astype(np.float32)
+        marker = Marker("virtual_agent", self.va_position().astype(np.float32), va_heading, circle=p.vair,
+                        color=VA_COLOR)
+        return Frame(
+            positions=rows[:, :2].astype(np.float32),
+            directions=directions,
+            arrow_length=0.5 * p.radius,
+            colors=RULE_COLORS[rows[:, 3].astype(np.int64)],
+            radius=0.5,
+            markers=[marker],
+        )
+
+    def world(self) -> WorldSpec:
+        return WorldSpec(dim=2, boundary="periodic", box=self.params.world, dt=self.dt)
