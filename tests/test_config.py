@@ -283,9 +283,13 @@ def test_several_errors_report_the_first_and_count_the_rest() -> None:
 
 
 def test_unknown_model() -> None:
-    assert config_error(model="boids") == "model: must be one of vicsek, got 'boids'"
-    assert config_error(source={"model": "boids"}).startswith("model: must be one of vicsek")
-    with pytest.raises(ConfigError, match="model: must be one of vicsek, got 'boids'"):
+    from tflock.config import PARAMS_SCHEMAS
+
+    allowed = ", ".join(PARAMS_SCHEMAS)
+    assert "vicsek" in PARAMS_SCHEMAS and len(PARAMS_SCHEMAS) >= 2
+    assert config_error(model="boids") == f"model: must be one of {allowed}, got 'boids'"
+    assert config_error(source={"model": "boids"}).startswith(f"model: must be one of {allowed}")
+    with pytest.raises(ConfigError, match=f"model: must be one of {allowed}, got 'boids'"):
         default_config_toml("boids")
 
 
