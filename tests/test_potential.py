@@ -1,0 +1,210 @@
+"""Potential-field flocking (Tanner-Jadbabaie-Pappas, papers/001): kernels against the NumPy oracle, physics of
+Theorems 1-2 and Corollaries 1-3, configs and validation.
+
+Oracle: one step at a time from the oracle's state (f64 1e-10, f32 relative 1e-4), and free-running trajectories
+at f64. Physics tests run at f64 only (test_precision.py reruns this file at f32 for the oracle tests).
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import PRECISION
+
+from tflock.config import ConfigError, default_config_toml, load_config
+from tflock.models.potential import Potential
+from tflock.models.potential_graphs import component_labels, initial_state, to_csr
+from tflock.reference import potential as ref
+
+F64 = PRECISION == "f64"
+TOL = 1e-10 if F64 else 1e-4
+ROOT = Path(__file__).resolve().parents[1]
+f64_only = pytest.mark.skipif(not F64, reason="physics and long horizons run at f64")
+
+
+def config(**params):
+    base = {"n": 10, "box": 5.0, "radius": 2.0, "desired_distance": 1.0, "dt": 0.01}
+    base.update(params)
+    return load_config(model="potential", overrides={**{f"params.{k}": v for k, v in base.items()},
+                                                      "seed": 3, "engine.precision": PRECISION})
+
+
+def gap(a, b):
+    a, b = a.astype(np.float64), b.astype(np.float64)
+    return float((np.abs(a - b) / (1.0 + np.abs(b))).max())
+
+
+CASES = {
+    "switching-2d": {"n": 80, "box": 9.0, "topology": "switching"},
+    "switching-3d": {"n": 80, "box": 5.0, "dim": 3, "topology": "switching"},
+    "fixed-random": {"n": 30, "box": 6.0, "topology": "fixed", "graph": "random", "graph_p": 0.2},
+    "fixed-tree-3d": {"n": 30, "box": 4.0, "dim": 3, "topology": "fixed", "graph": "tree"},
+    "fixed-ring": {"n": 12, "topology": "fixed", "graph": "ring"},
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_step_matches_reference(engine, case):
+    cfg = config(**CASES[case])
+    model = Potential(cfg.params, cfg.seed, engine)
+    edges = ref.graph_edges(cfg.params, cfg.seed)
+    state = model.state()
+    for t in range(40):
+        expected_x, expected_v = ref.potential_step(state["x"], state["v"], cfg.params, edges)
+        model.set_state(state, t)
+        model.advance(1)
+        got = model.state()
+        assert gap(got["v"], expected_v) < TOL, f"v differs at step {t}"
+        assert gap(got["x"], expected_x) < TOL, f"x differs at step {t}"
+        state = {"x": expected_x, "v": expected_v}
+
+
+@f64_only
+@pytest.mark.parametrize("case", ["switching-2d", "switching-3d", "fixed-random"])
+def test_trajectory_and_metrics_match_reference(engine, case):
+    cfg = config(**CASES[case])
+    model = Potential(cfg.params, cfg.seed, engine)
+    edges = ref.graph_edges(cfg.params, cfg.seed)
+    x, v = (a.astype(np.float64) for a in model.state().values())
+    for _ in range(300):
+        x, v = ref.potential_step(x, v, cfg.params, edges)
+    model.advance(300)
+    got = model.state()
+    assert gap(got["x"], x) < 1e-8 and gap(got["v"], v) < 1e-8
+    expected = ref.potential_metrics(x, v, cfg.params, edges)
+    for name, value in model.metrics().items():
+        assert value == pytest.approx(expected[name], rel=1e-9, abs=1e-9), name
+
+
+def test_initial_state_follows_section_6():
+    s = initial_state(400, 2, 5.0, 1.0, 0.15, seed=1)
+    x, v = s["x"], s["v"]
+    r = np.sqrt(((x[:, None] - x[None]) ** 2).sum(-1)) + np.eye(400) * 9
+    assert r.min() >= 0.15 and np.abs(x).max() < 2.5
+    speed = np.linalg.norm(v, axis=1)
+    assert 0 <= speed.min() and speed.max() < 1 and abs(speed.mean() - 0.5) < 0.05
+    assert np.array_equal(x, initial_state(400, 2, 5.0, 1.0, 0.15, seed=1)["x"])
+    s3 = initial_state(300, 3, 6.0, 2.0, 0.3, seed=2)
+    assert np.linalg.norm(s3["v"], axis=1).max() < 2 and abs(s3["v"].mean(axis=0)).max() < 0.2
+
+
+def test_graph_families():
+    n = 9
+    for graph, n_edges in [("complete", 36), ("path", 8), ("ring", 9), ("tree", 8)]:
+        model_edges = ref.graph_edges(config(n=n, topology="fixed", graph=graph).params, 0)
+        assert len(np.unique(np.sort(model_edges, axis=1), axis=0)) == n_edges
+        assert component_labels(n, model_edges).max() == 0
+    offsets, neighbours = to_csr(4, np.array([[0, 1], [2, 1], [1, 0]]))
+    assert offsets.tolist() == [0, 1, 3, 4, 4] and neighbours.tolist() == [1, 0, 2, 1]
+
+
+def test_validation_errors(tmp_path):
+    with pytest.raises(ConfigError, match="desired_distance: must be < params.radius"):
+        config(desired_distance=2.5)
+    with pytest.raises(ConfigError, match="params.dt"):
+        config(dt=0.0)
+    bad = tmp_path / "g.txt"
+    bad.write_text("0 1\n1 2\n# comment\n3 4\n")
+    with pytest.raises(ConfigError, match=r"not connected .*3 components: \{0, 1, 2\}, \{3, 4\}, \{5\}") as e:
+        config(n=6, topology="fixed", graph="file", graph_file=str(bad))
+    assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match="graph file not found"):
+        config(topology="fixed", graph="file", graph_file=str(tmp_path / "missing.txt"))
+    bad.write_text("0 x\n")
+    with pytest.raises(ConfigError, match="expected two agent ids"):
+        config(topology="fixed", graph="file", graph_file=str(bad))
+    with pytest.raises(ConfigError, match="min_separation: too large"):
+        config(n=1000, min_separation=0.5)
+    good = tmp_path / "ok.txt"
+    good.write_text("\n".join(f"{i} {i + 1}" for i in range(9)))
+    assert config(topology="fixed", graph="file", graph_file=str(good)).params.graph == "file"
+
+
+def test_configs_match_defaults_and_load():
+    assert (ROOT / "configs" / "potential.toml").read_text() == default_config_toml("potential")
+    for path in sorted((ROOT / "configs" / "papers").glob("tanner-*.toml")):
+        assert load_config(path).params.n == 10
+
+
+def run(engine, steps, every=10, **params):
+    cfg = config(**params)
+    model = Potential(cfg.params, cfg.seed, engine)
+    rows = [model.metrics()]
+    for _ in range(steps // every):
+        model.advance(every)
+        rows.append(model.metrics())
+    return model, {k: np.array([r[k] for r in rows]) for k in rows[0]}
+
+
+@f64_only
+def test_fixed_connected_graph_synchronises_and_w_falls(engine):
+    """Theorem 1: velocities synchronise; W (eq. 5) never rises beyond the integration error."""
+    _, m = run(engine, 3000, topology="fixed", graph="random")
+    assert m["velocity_mismatch_max"][-1] < 1e-3 * m["velocity_mismatch_max"][0]
+    assert np.diff(m["W"]).max() < 1e-3 * m["W"][0]
+    assert m["W"][-1] < 0.6 * m["W"][0]
+    assert m["polarization"][-1] > 0.999
+
+
+@f64_only
+def test_complete_graph_avoids_collisions(engine):
+    """Corollary 3: with a complete graph the minimum distance stays away from 0 (it starts at >= 0.25)."""
+    _, m = run(engine, 2000, every=5, n=10, topology="fixed", graph="complete", speed=3.0)
+    assert m["min_distance"].min() > 0.2
+    assert m["velocity_mismatch_max"][-1] < 1e-3
+
+
+@f64_only
+def test_tree_distances_converge_to_d(engine):
+    """Corollary 1: along the edges of a tree, distances converge to the desired distance."""
+    model, _ = run(engine, 4000, every=4000, n=10, topology="fixed", graph="tree", desired_distance=0.8)
+    x = model.state()["x"]
+    e = model.edges
+    dist = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1)
+    assert np.abs(dist - 0.8).max() < 1e-3
+
+
+@f64_only
+def test_higher_lambda2_synchronises_faster(engine):
+    """Corollary 2: from the same start, the complete graph (lambda_2 = n) aligns faster than the path."""
+    _, path = run(engine, 6000, every=20, n=10, topology="fixed", graph="path")
+    _, complete = run(engine, 6000, every=20, n=10, topology="fixed", graph="complete")
+    assert path["lambda2"][0] == pytest.approx(2 * (1 - math.cos(math.pi / 10)))
+    assert complete["lambda2"][0] == pytest.approx(10.0)
+    assert path["velocity_mismatch_mean"][0] == complete["velocity_mismatch_mean"][0]
+
+    def settle(m):  # first sample after which the velocity mismatch stays below 1e-2
+        above = np.flatnonzero(m["velocity_mismatch_max"] >= 1e-2)
+        return above[-1] + 1 if above.size else 0
+
+    assert settle(complete) < len(complete["W"]) - 1
+    assert settle(complete) < 0.5 * settle(path)
+
+
+@f64_only
+def test_switching_from_connected_start_agrees_on_speed(engine):
+    """Theorem 2: from a connected R-graph, speeds agree and Q (eq. 10) does not rise beyond the integration error."""
+    model, m = run(engine, 4000, every=20, n=10, topology="switching", radius=2.0)
+    assert m["connected"][0] == 1
+    assert m["speed_spread"][0] > 0.5 and m["speed_spread"][-1] < 1e-3
+    assert m["velocity_mismatch_max"][-1] < 1e-3
+    assert np.diff(m["Q"]).max() < 1e-3 * abs(m["Q"]).max()
+    assert m["min_distance"].min() > 0.2
+    assert m["valency_mean"][-1] >= m["valency_mean"][0]
+    assert {f"valency_{i}" for i in range(10)} | {f"speed_{i}" for i in range(10)} <= set(m)
+
+
+@f64_only
+def test_frame_draws_the_graph(engine):
+    cfg = config(n=12, topology="fixed", graph="ring")
+    model = Potential(cfg.params, cfg.seed, engine)
+    frame = model.frame(np.arange(12), 100)
+    assert frame.positions.shape == (12, 2) and frame.colors.shape == (12, 3) and frame.edges.shape == (12, 2, 2)
+    x = model.state()["x"]
+    assert np.allclose(frame.positions, x, atol=1e-6)
+    assert np.allclose(frame.edges[0], x[[0, 1]], atol=1e-6)
+    cfg = config(n=60, box=5.0, dim=3, topology="switching")
+    model = Potential(cfg.params, cfg.seed, engine)
+    frame = model.frame(np.arange(0, 60, 2), 50)
+    assert frame.positions.shape == (30, 3) and 0 < len(frame.edges) <= 50

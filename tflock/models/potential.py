@@ -1,0 +1,432 @@
+"""Tanner-Jadbabaie-Pappas potential-field flocking (DESIGN.md section 3.3; papers/001).
+
+Double integrators (eq. 1) r_i' = v_i, v_i' = u_i steered by the control law (eq. 3)
+
+    u_i = - sum_{j in N_i} (v_i - v_j) - sum_{j in N_i} grad_{r_i} V(|r_ij|),
+
+with the potential of Definition 2, V(r) = d^2 / r^2 + ln(r^2) (minimum at the desired distance d, infinite at 0),
+whose gradient is grad_{r_i} V(|r_ij|) = 2 (|r_ij|^2 - d^2) / |r_ij|^4 r_ij, r_ij = r_i - r_j.
+
+- switching topology (section 5): N_i = {j : |r_ij| < R}, d < R; the saturated U(r) = V(min(r, R)) makes the force
+  vanish beyond R. Neighbours come from the open-space hashed cell grid, the state is kept in cell order (``ids``
+  names the agent at each element), as in the Vicsek model.
+- fixed topology (section 4): a connected graph (:mod:`tflock.models.potential_graphs`) in CSR form, neighbours
+  regardless of distance; the state stays in agent order.
+
+Integration: semi-implicit (symplectic) Euler with a fixed dt, one neighbour pass per step:
+v(t + dt) = v(t) + dt u(r(t), v(t)), r(t + dt) = r(t) + dt v(t + dt).
+Initial state (section 6): :func:`tflock.models.potential_graphs.initial_state`.
+
+Lyapunov functions: W = 1/2 sum_i (V_i + |v_i|^2) (eq. 5) for a fixed graph; for switching Q (eq. 10) less its
+constant part: Q - N (N - 1) / 2 V(R) = 1/2 sum |v_i|^2 + sum_{pairs, |r_ij| < R} (V(|r_ij|) - V(R)), which is
+local. Both must not increase (dW/dt = -v^T (L x I) v, eq. 8 and 12) beyond the integration error.
+"""
+
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import taichi as ti
+
+from tflock.engine import EngineInfo
+from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
+from tflock.models.base import Model
+from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
+from tflock.models.potential_params import PotentialParams
+from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.record import Frame, WorldSpec
+from tflock.space import OPEN
+
+#: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
+PER_AGENT_MAX = 20
+#: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
+LAMBDA2_MAX = 1000
+
+_SPEED_RAMP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=np.float64)
+
+
+def potential_np(r2: np.ndarray, d2: float) -> np.ndarray:
+    """V(r) = d^2 / r^2 + ln(r^2) from the squared distance (Definition 2)."""
+    return d2 / r2 + np.log(r2)
+
+
+def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
+    """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow)."""
+    t = np.clip(np.asarray(speed, dtype=np.float64) / scale, 0.0, 1.0) * (len(_SPEED_RAMP) - 1)
+    k = np.minimum(t.astype(np.int64), len(_SPEED_RAMP) - 2)
+    f = (t - k)[:, None]
+    return np.rint(_SPEED_RAMP[k] * (1 - f) + _SPEED_RAMP[k + 1] * f).astype(np.uint8)
+
+
+@ti.func
+def _pair_acceleration(p, v, q, w, d2):
+    """Agent j's term of u_i (eq. 3): (v_j - v_i) - grad_{r_i} V, with q - p = r_j - r_i = -r_ij."""
+    dvec = q - p
+    r2 = dvec.norm_sqr()
+    return (w - v) + 2.0 * (r2 - d2) / (r2 * r2) * dvec
+
+
+@ti.kernel
+def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(), nc: ti.i32,
+                    n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
+                    id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                    vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+                    ids: ti.types.ndarray()):
+    for s in range(n):  # velocities in cell order: contiguous reads in the neighbour loop
+        e = order[s]
+        for a in ti.static(range(dim)):
+            vel_sorted[a, s] = vel[a, e]
+    for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
+        p = load_vec(pos_sorted, s, dim)
+        v = load_vec(vel_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        u = ti.Vector([0.0] * dim)
+        for o in ti.static(range(span_count(OPEN, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
+            for k in range(start[lo], start[hi]):
+                q = load_vec(pos_sorted, k, dim)
+                r2 = (q - p).norm_sqr()
+                inside = ti.select(r2 < r2cut, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
+                inside *= same_cell(coords_sorted, k, cell, OPEN, dim)
+                q = ti.select(k != s, q, p + 1.0)  # itself: any finite term (weight 0), no 0 / 0
+                u += inside * _pair_acceleration(p, v, q, load_vec(vel_sorted, k, dim), d2)
+        v_new = v + dt * u
+        p_new = p + dt * v_new
+        for a in ti.static(range(dim)):
+            vel[a, s] = v_new[a]
+            pos[a, s] = p_new[a]
+        ids[s] = id_sorted[s]
+
+
+@ti.kernel
+def _step_fixed(n: ti.i32, d2: float, dt: float, dim: ti.template(), offsets: ti.types.ndarray(),
+                neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+                pos_out: ti.types.ndarray(), vel_out: ti.types.ndarray()):
+    for i in range(n):
+        p = load_vec(pos, i, dim)
+        v = load_vec(vel, i, dim)
+        u = ti.Vector([0.0] * dim)
+        for k in range(offsets[i], offsets[i + 1]):
+            j = neighbours[k]
+            u += _pair_acceleration(p, v, load_vec(pos, j, dim), load_vec(vel, j, dim), d2)
+        v_new = v + dt * u
+        p_new = p + dt * v_new
+        for a in ti.static(range(dim)):
+            vel_out[a, i] = v_new[a]
+            pos_out[a, i] = p_new[a]
+
+
+@ti.kernel
+def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(), nc: ti.i32,
+                n_buckets: ti.i32, start: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), valency: ti.types.ndarray(),
+                energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
+    """Per agent (agent order): valency |N_i| (|r_ij| < R), half its saturated potential 1/2 sum (V - V(R)) and
+    the distance to its nearest agent, capped at R."""
+    for s in range(n):
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        count = 0
+        pot = 0.0
+        near = r2cut
+        for o in ti.static(range(span_count(OPEN, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
+            for k in range(start[lo], start[hi]):
+                r2 = (load_vec(pos_sorted, k, dim) - p).norm_sqr()
+                other = same_cell(coords_sorted, k, cell, OPEN, dim) == 1 and k != s
+                if other and r2 < r2cut:
+                    count += 1
+                    pot += d2 / r2 + ti.log(r2) - v_cut
+                    near = ti.min(near, r2)
+        i = id_sorted[s]
+        valency[i] = count
+        energy[i] = 0.5 * pot
+        nearest[i] = ti.sqrt(near)
+
+
+@ti.kernel
+def _csr_energy(n: ti.i32, d2: float, dim: ti.template(), offsets: ti.types.ndarray(),
+                neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), energy: ti.types.ndarray()):
+    """Half of each agent's potential V_i = sum_{j in N_i} V(|r_ij|) (eq. 4), agent order."""
+    for i in range(n):
+        p = load_vec(pos, i, dim)
+        pot = 0.0
+        for k in range(offsets[i], offsets[i + 1]):
+            r2 = (load_vec(pos, neighbours[k], dim) - p).norm_sqr()
+            pot += d2 / r2 + ti.log(r2)
+        energy[i] = 0.5 * pot
+
+
+@ti.kernel
+def _exact_nearest(n: ti.i32, dim: ti.template(), pos: ti.types.ndarray(), nearest: ti.types.ndarray()):
+    """Distance from each element's agent to its nearest other agent, all pairs (small n)."""
+    for e in range(n):
+        p = load_vec(pos, e, dim)
+        near = math.inf
+        for k in range(n):
+            if k != e:
+                near = ti.min(near, (load_vec(pos, k, dim) - p).norm_sqr())
+        nearest[e] = ti.sqrt(near)
+
+
+@ti.kernel
+def _gather(m: ti.i32, n: ti.i32, dim: ti.template(), agents: ti.types.ndarray(), ids: ti.types.ndarray(),
+            where: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(), out: ti.types.ndarray()):
+    """Rows (x, v) of agents[:m], whatever the arrangement of the state arrays."""
+    for e in range(n):
+        where[ids[e]] = e
+    for r in range(m):
+        e = where[agents[r]]
+        for a in ti.static(range(dim)):
+            out[r, a] = pos[a, e]
+            out[r, dim + a] = vel[a, e]
+
+
+class Potential(Model):
+    """Potential-field flocking of double integrators, fixed or switching topology, 2D or 3D (see the module)."""
+
+    name = "potential"
+
+    def __init__(self, params: PotentialParams, seed: int, engine: EngineInfo) -> None:
+        super().__init__(params, seed, engine)
+        n, dim, real = params.n, params.dim, engine.real
+        self.dt = params.dt
+        self.dim = dim
+        self.switching = params.topology == "switching"
+        ftype = ti.f32 if real == np.float32 else ti.f64
+        self.pos = ti.ndarray(ftype, (dim, n))  # component-major, as every kernel array
+        self.vel = ti.ndarray(ftype, (dim, n))
+        self.ids = ti.ndarray(ti.i32, n)
+        self.scratch = ti.ndarray(ftype, (dim, n))  # velocities in cell order, or the fixed step's new velocities
+        self.pos_next = ti.ndarray(ftype, (dim, n) if not self.switching else (dim, 1))
+        self._where = ti.ndarray(ti.i32, n)
+        self.valency = ti.ndarray(ti.i32, n)
+        self.energy = ti.ndarray(ftype, n)
+        self.nearest = ti.ndarray(ftype, n)
+        self.grid = CellGrid(n, dim, "open", params.box, params.radius, real)
+        self.graph = NeighbourGraph(self.grid)
+        self._grid_step = -1
+        self._lambda2: tuple[int, float] | None = None  # (step, value) of the last lambda_2
+        self._drawing = None
+        if not self.switching:
+            self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
+            offsets, neighbours = to_csr(n, self.edges)
+            self.offsets_np, self.neighbours_np = offsets, neighbours
+            self.offsets = ti.ndarray(ti.i32, n + 1)
+            self.neighbours = ti.ndarray(ti.i32, max(1, len(neighbours)))
+            self.offsets.from_numpy(offsets)
+            if len(neighbours):
+                self.neighbours.from_numpy(neighbours)
+            self.valency.from_numpy(np.diff(offsets).astype(np.int32))
+            m = n if n > EXACT_PAIRS_MAX else 1  # the grid finds the nearest agents of a large fixed-graph swarm
+            self._grid_valency = ti.ndarray(ti.i32, m)
+            self._grid_energy = ti.ndarray(ftype, m)
+        self.metric_descriptions = self._describe()
+        self.set_state(initial_state(n, dim, params.box, params.speed, params.min_separation, seed), 0)
+
+    def _describe(self) -> dict[str, str]:
+        p = self.params
+        lyapunov = ("W", "Lyapunov function W = kinetic + potential energy (eq. 5)") if not self.switching else (
+            "Q", "Lyapunov function Q (eq. 10) less its constant N (N - 1) / 2 V(R)")
+        capped = "" if p.n <= EXACT_PAIRS_MAX else ", capped at R"
+        out = {
+            "velocity_mismatch_mean": "mean |v_i - mean v|",
+            "velocity_mismatch_max": "max |v_i - mean v|",
+            "speed_mean": "mean speed |v_i|",
+            "speed_spread": "speed spread max |v_i| - min |v_i|",
+            "polarization": "polarization |mean v_i / |v_i||",
+            "kinetic_energy": "kinetic energy 1/2 sum |v_i|^2",
+            "potential_energy": "potential energy: sum over edges V(|r_ij|)" if not self.switching
+            else "potential energy: sum over pairs |r_ij| < R of V(|r_ij|) - V(R)",
+            lyapunov[0]: lyapunov[1],
+            "min_distance": "minimum pairwise distance" + capped,
+            "valency_mean": "mean valency (neighbour count)",
+            "valency_min": "min valency",
+            "valency_max": "max valency",
+            "components": "connected components of the interaction graph",
+            "connected": "1 when the interaction graph is connected",
+        }
+        if p.n <= LAMBDA2_MAX:
+            out["lambda2"] = f"algebraic connectivity lambda_2 of the graph Laplacian (every {p.lambda2_every} steps)"
+        if p.n <= PER_AGENT_MAX:
+            out.update({f"valency_{i}": f"valency of agent {i}" for i in range(p.n)})
+            out.update({f"speed_{i}": f"speed of agent {i}" for i in range(p.n)})
+        return out
+
+    # ------------------------------------------------------------------------------------------------------
+    # State.
+
+    def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
+        """Replace the state: ``x`` and ``v``, (n, dim) in agent order."""
+        real = self.engine.real
+        self.pos.from_numpy(np.ascontiguousarray(np.asarray(state["x"]).T, dtype=real))
+        self.vel.from_numpy(np.ascontiguousarray(np.asarray(state["v"]).T, dtype=real))
+        self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
+        self.step_index = step
+        self._grid_step = -1
+        self._lambda2 = None
+
+    def state(self) -> dict[str, np.ndarray]:
+        ids = self.ids.to_numpy()
+        x = np.empty((self.params.n, self.dim), dtype=self.engine.real)
+        v = np.empty_like(x)
+        x[ids] = self.pos.to_numpy().T
+        v[ids] = self.vel.to_numpy().T
+        return {"x": x, "v": v}
+
+    def _ensure_grid(self) -> None:
+        if self._grid_step != self.step_index:
+            self.grid.build(self.pos, self.ids)
+            self._grid_step = self.step_index
+
+    def advance(self, steps: int) -> None:
+        p = self.params
+        d2 = p.desired_distance**2
+        g = self.grid.geometry
+        for _ in range(steps):
+            if self.switching:
+                self._ensure_grid()
+                _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.cells_per_side, g.n_buckets,
+                                self.grid.start, self.grid.order, self.grid.id_sorted, self.grid.pos_sorted,
+                                self.grid.coords_sorted, self.scratch, self.pos, self.vel, self.ids)
+            else:
+                _step_fixed(p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
+                            self.pos_next, self.scratch)
+                self.pos, self.pos_next = self.pos_next, self.pos
+                self.vel, self.scratch = self.scratch, self.vel
+            self.step_index += 1
+
+    # ------------------------------------------------------------------------------------------------------
+    # Metrics.
+
+    def adjacency(self) -> np.ndarray:
+        """Boolean adjacency matrix of the current interaction graph (small n)."""
+        n = self.params.n
+        if not self.switching:
+            a = np.zeros((n, n), dtype=bool)
+            a[self.edges[:, 0], self.edges[:, 1]] = True
+            return a | a.T
+        x = self.state()["x"].astype(np.float64)
+        a = ((x[:, None, :] - x[None, :, :]) ** 2).sum(axis=2) < self.params.radius**2
+        np.fill_diagonal(a, False)
+        return a
+
+    def _lambda2_now(self) -> float:
+        step, every = self.step_index, self.params.lambda2_every
+        stale = self._lambda2 is None or (self.switching and (step % every == 0 or step < self._lambda2[0]))
+        if stale:  # a fixed graph's lambda_2 never changes
+            a = self.adjacency().astype(np.float64)
+            laplacian = np.diag(a.sum(axis=1)) - a
+            value = float(np.linalg.eigvalsh(laplacian)[1]) if len(a) > 1 else 0.0
+            self._lambda2 = (step, value)
+        return self._lambda2[1]
+
+    def metrics(self) -> dict[str, float]:
+        p = self.params
+        n, d2 = p.n, p.desired_distance**2
+        self._ensure_grid()
+        g = self.grid.geometry
+        if self.switching:
+            v_cut = d2 / p.radius**2 + math.log(p.radius**2)
+            _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
+                        self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.valency,
+                        self.energy, self.nearest)
+            graph = self.graph.compute(p.radius, p.box)
+            components = graph["clusters"]
+        else:
+            _csr_energy(n, d2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
+            components = 1.0  # validated connected, and fixed
+            if n > EXACT_PAIRS_MAX:
+                v_cut = d2 / p.radius**2 + math.log(p.radius**2)
+                _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
+                            self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
+                            self._grid_valency, self._grid_energy, self.nearest)
+        if n <= EXACT_PAIRS_MAX:
+            _exact_nearest(n, self.dim, self.pos, self.nearest)
+        v = self.vel.to_numpy().astype(np.float64).T  # order of the agents does not matter below
+        speed = np.sqrt((v * v).sum(axis=1))
+        mismatch = np.sqrt(((v - v.mean(axis=0)) ** 2).sum(axis=1))
+        moving = speed > 0
+        heading = (v[moving] / speed[moving, None]).sum(axis=0) / n
+        kinetic = 0.5 * float((speed * speed).sum())
+        potential = float(self.energy.to_numpy().astype(np.float64).sum())
+        valency = self.valency.to_numpy()
+        out = {
+            "velocity_mismatch_mean": float(mismatch.mean()),
+            "velocity_mismatch_max": float(mismatch.max()),
+            "speed_mean": float(speed.mean()),
+            "speed_spread": float(speed.max() - speed.min()),
+            "polarization": float(np.sqrt((heading * heading).sum())),
+            "kinetic_energy": kinetic,
+            "potential_energy": potential,
+            "W": kinetic + potential,
+            "Q": kinetic + potential,
+            "min_distance": float(self.nearest.to_numpy().min()) if n > 1 else 0.0,
+            "valency_mean": float(valency.mean()),
+            "valency_min": float(valency.min()),
+            "valency_max": float(valency.max()),
+            "components": components,
+            "connected": float(components == 1.0),
+        }
+        if n <= LAMBDA2_MAX:
+            out["lambda2"] = self._lambda2_now()
+        if n <= PER_AGENT_MAX:
+            ids = self.ids.to_numpy()
+            agent_speed = np.empty(n)
+            agent_speed[ids] = speed
+            out.update({f"valency_{i}": float(valency[i]) for i in range(n)})
+            out.update({f"speed_{i}": float(agent_speed[i]) for i in range(n)})
+        return {name: out[name] for name in self.metric_descriptions}
+
+    # ------------------------------------------------------------------------------------------------------
+    # Drawing.
+
+    def _rows(self, agents: np.ndarray) -> np.ndarray:
+        """(m, 2 dim) rows x, v of the given agents."""
+        m = len(agents)
+        out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * self.dim))
+        if m:
+            ids = ti.ndarray(ti.i32, m)
+            ids.from_numpy(np.asarray(agents, dtype=np.int32))
+            _gather(m, self.params.n, self.dim, ids, self.ids, self._where, self.pos, self.vel, out)
+        return out.to_numpy()[:m].astype(np.float64)
+
+    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
+        """Agents coloured by speed, velocity arrows, and the interaction graph's edges (the fixed graph, or the
+        current switching one)."""
+        p, dim = self.params, self.dim
+        rows = self._rows(selected)
+        pos, vel = rows[:, :dim], rows[:, dim:]
+        if self.switching:
+            self._ensure_grid()
+            if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
+                self._drawing = SubsetDrawing(self.grid, selected)
+            edges = self._drawing.edges(p.box, p.radius, max_edges)
+        else:
+            edges = self._fixed_edges(selected, pos, max_edges)
+        return Frame(
+            positions=pos.astype(np.float32),
+            directions=vel.astype(np.float32),
+            arrow_length=p.desired_distance / p.speed,
+            colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
+            edges=np.asarray(edges, dtype=np.float32),
+            radius=0.1 * p.desired_distance,
+        )
+
+    def _fixed_edges(self, selected: np.ndarray, pos: np.ndarray, max_edges: int) -> np.ndarray:
+        """Edges of the fixed graph from each drawn agent (in id order) to its neighbours, at most max_edges."""
+        mask = np.zeros(self.params.n, dtype=bool)
+        mask[selected] = True
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        keep = mask[a] | mask[b]
+        a, b = a[keep], b[keep]
+        order = np.lexsort((np.maximum(a, b), np.minimum(a, b)))[:max_edges]
+        a, b = a[order], b[order]
+        ends = np.unique(np.concatenate([a, b]))
+        rows = self._rows(ends)[:, : self.dim]
+        return np.stack([rows[np.searchsorted(ends, a)], rows[np.searchsorted(ends, b)]], axis=1).reshape(
+            -1, 2, self.dim)
+
+    def world(self) -> WorldSpec:
+        return WorldSpec(dim=self.dim, boundary="open", box=self.params.box, dt=self.dt)
