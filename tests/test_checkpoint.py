@@ -35,7 +35,12 @@ def test_resumed_run_is_bit_identical(make_sim, tmp_path, extra):
         assert np.array_equal(ma[key], mb[key]), key
 
 
-@pytest.mark.parametrize("model,params", [("formation", {"n": 12}), ("vicsek", {"n": 300, "box": 12.0})])
+@pytest.mark.parametrize("model,params", [
+    ("formation", {"n": 12}),
+    ("vicsek", {"n": 300, "box": 12.0}),
+    ("potential", {"n": 200, "box": 12.0}),
+    ("potential", {"n": 60, "box": 8.0, "topology": "fixed", "graph": "tree"}),
+])
 def test_every_model_resumes_bit_identically(make_sim, tmp_path, model, params):
     from tflock import Simulation
 

@@ -1,6 +1,8 @@
-"""Same config and seed: bit-identical trajectories whatever the thread count (counter-based RNG, cell slices
-sorted by agent id, block-wise reductions). Thread counts are process-wide, so each run is a subprocess."""
+"""Same config and seed: bit-identical trajectories and metrics whatever the thread count, for every model
+(counter-based RNG, cell slices sorted by agent id, block-wise reductions). Thread counts are process-wide, so
+each run is a subprocess."""
 
+import json
 import subprocess
 import sys
 
@@ -8,26 +10,37 @@ import numpy as np
 import pytest
 
 SCRIPT = """
-import sys, numpy as np
+import json, sys, numpy as np
 from tflock import Simulation
-sim = Simulation(params={"n": 4000, "box": 40.0, "radius": 1.0, "speed": 0.5, "noise": 0.5,
-                         "boundary": sys.argv[2], "rule": "vector"},
-                 engine={"threads": int(sys.argv[1]), "precision": "f32"}, steps=60, seed=11)
+model, params = json.loads(sys.argv[2])
+sim = Simulation(model=model, params=params, engine={"threads": int(sys.argv[1]), "precision": "f32"}, steps=60,
+                 seed=11)
 sim.run()
 s = sim.state()
 m = sim.metrics()
-np.savez(sys.argv[3], x=s["x"], theta=s["theta"], **{k: v for k, v in m.items()})
+arrays = {f"state_{k}": v for k, v in s.items() if isinstance(v, np.ndarray)}
+np.savez(sys.argv[3], **arrays, **{f"metric_{k}": v for k, v in m.items()})
 """
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "open"])
-def test_one_and_two_threads_give_identical_runs(tmp_path, boundary):
+VICSEK = {"n": 4000, "box": 40.0, "radius": 1.0, "speed": 0.5, "noise": 0.5, "rule": "vector"}
+
+
+@pytest.mark.parametrize("model,params", [
+    ("vicsek", {**VICSEK, "boundary": "periodic"}),
+    ("vicsek", {**VICSEK, "boundary": "open", "async_bound": 4}),
+    ("potential", {"n": 3000, "box": 90.0}),
+    ("formation", {"n": 3000, "world": 400.0, "init_length": 150.0, "init_width": 150.0, "fail_prob": 0.2,
+                   "noise_deg": 1.0}),
+])
+def test_one_and_two_threads_give_identical_runs(tmp_path, model, params):
     runs = []
     for threads in (1, 2):
         out = tmp_path / f"run{threads}.npz"
-        subprocess.run([sys.executable, "-c", SCRIPT, str(threads), boundary, str(out)], check=True, timeout=300)
+        subprocess.run([sys.executable, "-c", SCRIPT, str(threads), json.dumps([model, params]), str(out)],
+                       check=True, timeout=300)
         runs.append(np.load(out))
     one, two = runs
-    assert one["theta"].dtype == np.float32
+    assert one["state_x"].dtype == np.float32 and len(one.files) > 5
     for key in one.files:
         assert np.array_equal(one[key], two[key]), key

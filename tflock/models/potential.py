@@ -207,7 +207,6 @@ class Potential(Model):
         self.grid = CellGrid(n, dim, "open", params.box, params.radius, real)
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1
-        self._lambda2: tuple[int, float] | None = None  # (step, value) of the last lambda_2
         self._drawing = None
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
@@ -265,7 +264,11 @@ class Potential(Model):
         self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
         self.step_index = step
         self._grid_step = -1
-        self._lambda2 = None
+        self._lambda2_step = -1  # step of the last lambda_2 (plain numbers: checkpoints keep them)
+        self._lambda2_value = 0.0
+
+    def invalidate(self) -> None:
+        self._grid_step = -1
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -314,13 +317,14 @@ class Potential(Model):
 
     def _lambda2_now(self) -> float:
         step, every = self.step_index, self.params.lambda2_every
-        stale = self._lambda2 is None or (self.switching and (step % every == 0 or step < self._lambda2[0]))
+        last = self._lambda2_step
+        stale = last < 0 or (self.switching and (step % every == 0 or step < last))
         if stale:  # a fixed graph's lambda_2 never changes
             a = self.adjacency().astype(np.float64)
             laplacian = np.diag(a.sum(axis=1)) - a
-            value = float(np.linalg.eigvalsh(laplacian)[1]) if len(a) > 1 else 0.0
-            self._lambda2 = (step, value)
-        return self._lambda2[1]
+            self._lambda2_value = float(np.linalg.eigvalsh(laplacian)[1]) if len(a) > 1 else 0.0
+            self._lambda2_step = step
+        return self._lambda2_value
 
     def metrics(self) -> dict[str, float]:
         p = self.params
