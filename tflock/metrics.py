@@ -109,7 +109,7 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
         count = 0
-        for o in ti.static(range(span_count(boundary, dim))):
+        for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
@@ -122,7 +122,7 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
         root = s  # a recent root of s's set: saves walking s's chain for every neighbour
-        for o in ti.static(range(span_count(boundary, dim))):
+        for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], ti.min(start[hi], s)):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)

@@ -14,7 +14,7 @@ Models loop over neighbours themselves, with the helpers below, inside their own
 
     for s in range(n):                      # agents in cell order
         c = coords_sorted[s]
-        for o in ti.static(range(span_count(boundary, dim))):
+        for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
                 same = same_cell(coords_sorted, k, cell, boundary, dim)   # 1 when k really is in `cell`
@@ -85,13 +85,14 @@ def bucket_of_cell(c, nc, n_buckets, boundary: ti.template(), dim: ti.template()
 def span_count(boundary: int, dim: int) -> int:
     """Number of bucket spans a query visits: 2 per stencil row in a box, one per cell (3^dim) in open space.
 
-    Kernels unroll the span loop: ``for o in ti.static(range(span_count(boundary, dim)))``.
+    Kernels loop over spans at run time with a constant bound, ``for o in range(ti.static(span_count(...)))``:
+    unrolling 18-27 spans in 3D made kernels take minutes to compile.
     """
     return 3**dim if boundary == OPEN else 2 * 3 ** (dim - 1)
 
 
 @ti.func
-def stencil_span(c, o: ti.template(), nc, n_buckets, boundary: ti.template(), dim: ti.template()):
+def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
     """The o-th span of buckets [lo, hi) around cell c, and the cell it stands for (open space).
 
     In a box, buckets are row-major, so the cells x-1..x+1 of a stencil row are one contiguous span of sorted
@@ -105,16 +106,16 @@ def stencil_span(c, o: ti.template(), nc, n_buckets, boundary: ti.template(), di
     hi = 0
     if ti.static(boundary == OPEN):
         for k in ti.static(range(dim)):
-            cell[k] = c[k] + ti.static((o // 3**k) % 3 - 1)
+            cell[k] = c[k] + (o // ti.static(3**k)) % 3 - 1
         lo = bucket_of_cell(cell, nc, n_buckets, boundary, dim)
         hi = lo + 1
     else:
-        row = ti.static(o // 2)  # o is a compile-time constant (callers unroll the span loop): no division
-        seg = ti.static(o % 2)
+        row = o // 2  # divisions by constants only: cheap, and folded away where a loop is unrolled
+        seg = o % 2
         ok = True
         b = 0
         for k in ti.static(range(dim - 1, 0, -1)):  # row-major: the last axis varies slowest
-            off = ti.static((row // 3 ** (k - 1)) % 3 - 1)
+            off = (row // ti.static(3 ** (k - 1))) % 3 - 1
             t = c[k] + off
             if ti.static(boundary == PERIODIC):
                 if nc < 3 and (off < 0 or off >= nc):
@@ -129,9 +130,7 @@ def stencil_span(c, o: ti.template(), nc, n_buckets, boundary: ti.template(), di
         b *= nc
         x0 = c[0] - 1
         x1 = c[0] + 2  # exclusive
-        first = True
-        if ti.static(seg == 1):
-            first = False
+        first = seg == 0
         if ti.static(boundary == PERIODIC):
             if nc < 3:
                 x0, x1 = 0, nc
@@ -270,7 +269,7 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.n
         s = slot_of[i]
         p = load_vec(pos_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
-        for o in ti.static(range(span_count(boundary, dim))):
+        for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
                 j = id_sorted[k]

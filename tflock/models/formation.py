@@ -141,7 +141,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
         best = sep2  # nearest neighbour closer than the minimum separation
         best_id = -1
         away = ti.Vector([0.0, 0.0])
-        for o in ti.static(range(span_count(PERIODIC, 2))):
+        for o in range(ti.static(span_count(PERIODIC, 2))):
             lo, hi, _ = stencil_span(cell, o, nc, n_buckets, PERIODIC, 2)
             for k in range(start[lo], start[hi]):
                 d = displacement(p, load_vec(pos_sorted, k, 2), world, PERIODIC)

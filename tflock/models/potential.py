@@ -82,7 +82,7 @@ def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.templ
         v = load_vec(vel_sorted, s, dim)
         c = load_ivec(coords_sorted, s, dim)
         u = ti.Vector([0.0] * dim)
-        for o in ti.static(range(span_count(OPEN, dim))):
+        for o in range(ti.static(span_count(OPEN, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
             for k in range(start[lo], start[hi]):
                 q = load_vec(pos_sorted, k, dim)
@@ -130,7 +130,7 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
         count = 0
         pot = 0.0
         near = r2cut
-        for o in ti.static(range(span_count(OPEN, dim))):
+        for o in range(ti.static(span_count(OPEN, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
             for k in range(start[lo], start[hi]):
                 r2 = (load_vec(pos_sorted, k, dim) - p).norm_sqr()

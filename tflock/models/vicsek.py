@@ -112,7 +112,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
             acc_a = 0.0
             acc_b = 0.0
             count = 0.0
-            for o in ti.static(range(span_count(boundary, 2))):
+            for o in range(ti.static(span_count(boundary, 2))):
                 lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
                 for k in range(start[lo], start[hi]):
                     if ti.static(not asynchronous):

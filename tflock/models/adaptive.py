@@ -1,0 +1,331 @@
+"""Li-Wang adaptive-velocity model in 2D and 3D (DESIGN.md section 3.2; papers/002, Li & Wang, PRE 75, 021917).
+
+State: positions X_i, unit directions d_i and local polarities phi_i. One step k -> k+1 (dt = 1):
+
+1. move, eqs. (5) and (8): X_i(k+1) = X_i(k) + v0 c(phi_i(k)) d_i(k), with c(phi) = phi^alpha (Fig. 2);
+   alpha = "inf" is eq. (6): c = 1 where phi >= 1 - tol and 0 elsewhere (tol of
+   :func:`~tflock.models.adaptive_params.agreement_tolerance`: 1e-6 at f64, 1e-5 at f32);
+2. neighbours Gamma_i(k+1) = {j : |X_j(k+1) - X_i(k+1)| <= R}, i itself included (minimum image when periodic);
+3. eqs. (4), (7), (9): m_i = mean of d_j(k) over Gamma_i(k+1); phi_i(k+1) = |m_i| (clamped to 1 against
+   rounding), d_i(k+1) = m_i / |m_i| (d_i(k) kept when m_i = 0);
+4. noise, eq. (12): in 2D d_i(k+1) is turned by xi ~ U[-eta, eta] (``Stream.NOISE``); in 3D, where the paper
+   defines none, it is drawn uniformly in the spherical cap of half-angle eta around m_i / |m_i| (cos of the
+   polar angle uniform in [cos eta, 1] from ``Stream.NOISE``, azimuth from ``Stream.NOISE_2``). phi is unchanged.
+
+Initialisation (section IV): X(0) uniform in [0, L)^d (``INIT_X/Y/Z``), directions uniform on the circle or the
+sphere (``INIT_HEADING``, and ``INIT_HEADING_2`` for the 3D azimuth), then phi_i(0), d_i(0) from eq. (4) with the
+neighbours at X(0), without noise. Open space (the paper's) has no walls: the neighbour grid hashes cells, so
+agents may spread without bound; ``periodic`` wraps into [0, L)^d.
+"""
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import taichi as ti
+
+from tflock.engine import EngineInfo
+from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
+from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
+from tflock.models.base import Model
+from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.record import Frame, WorldSpec
+from tflock.rng import Stream, uniform_np, uniform_ti
+from tflock.space import OPEN, PERIODIC, boundary_code, displacement, wrap_periodic
+
+TWO_PI = 2 * math.pi
+#: mean speed / v0 at which the transient ends (the paper's tau: 98 % of v0)
+TRANSIENT_SPEED = 0.98
+#: converged: one cluster (S = 1) and Phi_theta >= 1 - CONVERGED_TOL
+CONVERGED_TOL = 1e-3
+FINITE, INFINITE = 0, 1
+
+
+def initial_draws(params: AdaptiveParams, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """X(0) uniform in [0, L)^d and raw directions uniform on the circle / sphere, (n, d) float64 each."""
+    ids = np.arange(params.n)
+    axes = (Stream.INIT_X, Stream.INIT_Y, Stream.INIT_Z)[: params.dim]
+    x = np.stack([params.box * uniform_np(seed, 0, ids, s) for s in axes], axis=1)
+    u = uniform_np(seed, 0, ids, Stream.INIT_HEADING)
+    if params.dim == 2:
+        return x, np.stack([np.cos(TWO_PI * u), np.sin(TWO_PI * u)], axis=1)
+    z = 1 - 2 * u  # z uniform in [-1, 1] with an independent azimuth: uniform on the sphere (Archimedes)
+    azimuth = TWO_PI * uniform_np(seed, 0, ids, Stream.INIT_HEADING_2)
+    r = np.sqrt(np.maximum(0.0, 1 - z * z))
+    return x, np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
+
+
+@ti.func
+def speed_coefficient(phi, alpha, tol, mode: ti.template()):
+    """c_alpha(phi) = phi^alpha (Fig. 2); mode INFINITE: eq. (6), 1 where phi >= 1 - tol, else 0."""
+    c = 0.0
+    if ti.static(mode == INFINITE):
+        c = ti.select(phi >= 1.0 - tol, 1.0, 0.0)
+    else:
+        c = ti.pow(phi, alpha)
+    return c
+
+
+@ti.func
+def cone_noise(m, u, v, cos_eta):
+    """Unit vector in the spherical cap of half-angle eta around the unit vector m (3D noise).
+
+    cos of the polar angle = cos_eta + (1 - cos_eta) u, azimuth 2 pi v, in the basis of Duff et al. (2017).
+    """
+    sign = ti.select(m[2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + m[2])
+    b = m[0] * m[1] * a
+    b1 = ti.Vector([1.0 + sign * m[0] * m[0] * a, sign * b, -sign * m[0]])
+    b2 = ti.Vector([b, sign + m[1] * m[1] * a, -m[1]])
+    ct = cos_eta + (1.0 - cos_eta) * u
+    st = ti.sqrt(ti.max(0.0, 1.0 - ct * ct))
+    azimuth = TWO_PI * v
+    return ct * m + (st * ti.cos(azimuth)) * b1 + (st * ti.sin(azimuth)) * b2
+
+
+@ti.kernel
+def _move(n: ti.i32, speed: float, alpha: float, tol: float, box: float, mode: ti.template(),
+          boundary: ti.template(), dim: ti.template(), pos: ti.types.ndarray(), dirs: ti.types.ndarray(),
+          phi: ti.types.ndarray()):
+    """Eqs. (5), (8): X_i += v0 c(phi_i) d_i, wrapped into the box when periodic."""
+    for e in range(n):
+        q = load_vec(pos, e, dim) + speed * speed_coefficient(phi[e], alpha, tol, mode) * load_vec(dirs, e, dim)
+        if ti.static(boundary == PERIODIC):
+            q = wrap_periodic(q, box)
+        for a in ti.static(range(dim)):
+            pos[a, e] = q[a]
+
+
+@ti.kernel
+def _align(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, box: float, noise: float, cos_eta: float,
+           with_noise: ti.template(), boundary: ti.template(), dim: ti.template(), nc: ti.i32, n_buckets: ti.i32,
+           start: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
+           pos: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(), ids: ti.types.ndarray()):
+    """Eqs. (4), (7), (9), (12) with the neighbours of the grid's positions; writes the state in cell order."""
+    for s in range(n):  # d_j(k) in cell order: contiguous reads in the neighbour loop
+        e = order[s]
+        for a in ti.static(range(dim)):
+            payload[a, s] = dirs[a, e]
+    r2 = radius * radius
+    for s in range(n):
+        i = id_sorted[s]
+        p = load_vec(pos_sorted, s, dim)
+        c = load_ivec(coords_sorted, s, dim)
+        acc = ti.Vector([0.0] * dim)
+        count = 0.0
+        for o in range(ti.static(span_count(boundary, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            for k in range(start[lo], start[hi]):
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                w = ti.select(d.norm_sqr() <= r2, 1.0, 0.0)  # k == s passes: i itself is in Gamma_i
+                if ti.static(boundary == OPEN):
+                    w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                acc += w * load_vec(payload, k, dim)
+                count += w
+        m = acc / count
+        norm = m.norm()
+        new = load_vec(payload, s, dim)
+        if norm > 0:
+            new = m / norm
+        if ti.static(with_noise):
+            u = uniform_ti(seed, t, i, Stream.NOISE)
+            if ti.static(dim == 2):  # eq. (12): turn by xi ~ U[-eta, eta]
+                xi = noise * (2.0 * u - 1.0)
+                cx, sx = ti.cos(xi), ti.sin(xi)
+                new = ti.Vector([cx * new[0] - sx * new[1], sx * new[0] + cx * new[1]])
+            else:
+                new = cone_noise(new, u, uniform_ti(seed, t, i, Stream.NOISE_2), cos_eta)
+        for a in ti.static(range(dim)):
+            pos[a, s] = p[a]
+            dirs[a, s] = new[a]
+        phi[s] = ti.min(norm, 1.0)
+        ids[s] = i
+        order[s] = s  # element s now holds slot s: the grid's order stays valid for the new arrangement
+
+
+@ti.kernel
+def _order_sums(n: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: ti.template(),
+                dirs: ti.types.ndarray(), phi: ti.types.ndarray(), partial: ti.types.ndarray()):
+    """Per block of agents: sum d_i, sum c_i d_i, sum c_i, sum c_i |d_i| (c_i = c_alpha(phi_i))."""
+    for blk in range(partial.shape[0]):
+        sd = ti.Vector([0.0] * dim)
+        sv = ti.Vector([0.0] * dim)
+        sc = 0.0
+        ss = 0.0
+        for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+            d = load_vec(dirs, e, dim)
+            c = speed_coefficient(phi[e], alpha, tol, mode)
+            sd += d
+            sv += c * d
+            sc += c
+            ss += c * d.norm()
+        for a in ti.static(range(dim)):
+            partial[blk, a] = sd[a]
+            partial[blk, dim + a] = sv[a]
+        partial[blk, 2 * dim] = sc
+        partial[blk, 2 * dim + 1] = ss
+
+
+@ti.kernel
+def _frame_rows(m: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: ti.template(),
+                selected: ti.types.ndarray(), slot_of: ti.types.ndarray(), order: ti.types.ndarray(),
+                pos_sorted: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(),
+                out: ti.types.ndarray()):
+    """Rows (position, velocity / v0 = c_alpha(phi) d) of the selected agents."""
+    for r in range(m):
+        s = slot_of[selected[r]]
+        e = order[s]
+        c = speed_coefficient(phi[e], alpha, tol, mode)
+        for a in ti.static(range(dim)):
+            out[r, a] = pos_sorted[a, s]
+            out[r, dim + a] = c * dirs[a, e]
+
+
+class Adaptive(Model):
+    """Li-Wang adaptive velocity on the cell grid (hashed cells in open space), 2D and 3D.
+
+    The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each
+    element); :meth:`state` returns ``x`` (n, d), ``d`` (n, d) and ``phi`` (n,) in agent order. The transient
+    time tau (first step with mean speed >= 0.98 v0) is tracked at every step, from the initial state or the
+    last :meth:`set_state`, and reported (NaN before) once reached.
+    """
+
+    name = "adaptive"
+
+    def __init__(self, params: AdaptiveParams, seed: int, engine: EngineInfo) -> None:
+        super().__init__(params, seed, engine)
+        n, dim, real = params.n, params.dim, engine.real
+        self.metric_descriptions = {
+            "phi_theta": "Phi_theta |mean unit direction| (eq. 3)",
+            "phi_v": "Phi_v |sum of velocities| / (N v0) (eq. 2)",
+            "c_alpha": "C_alpha mean speed coefficient phi^alpha (eq. 11)",
+            "mean_speed": "mean speed / v0",
+            "clusters": "clusters (components of the R-graph)",
+            "largest_cluster": "largest cluster fraction S",
+            "mean_neighbors": "mean neighbour count",
+            "max_neighbors": "max neighbour count",
+            "tau": "transient time tau: first step with mean speed >= 0.98 v0",
+            "converged": "converged: S = 1 and Phi_theta >= 0.999",
+        }
+        ftype = ti.f32 if real == np.float32 else ti.f64
+        self.pos = ti.ndarray(ftype, (dim, n))  # component-major, as every kernel array
+        self.dirs = ti.ndarray(ftype, (dim, n))
+        self.phi = ti.ndarray(ftype, n)
+        self.ids = ti.ndarray(ti.i32, n)
+        self.payload = ti.ndarray(ftype, (dim, n))  # d_j(k) in cell order
+        self.partial = ti.ndarray(ti.f64, (n_blocks(n), 2 * dim + 2))
+        self.grid = CellGrid(n, dim, params.boundary, params.box, params.radius, real)
+        self.graph = NeighbourGraph(self.grid)
+        self._boundary = boundary_code(params.boundary)
+        self._mode = INFINITE if params.alpha == "inf" else FINITE
+        self._alpha = 0.0 if params.alpha == "inf" else float(params.alpha)
+        self._tol = agreement_tolerance(np.dtype(real).itemsize)
+        self._drawing: SubsetDrawing | None = None
+        self._grid_step = -1  # step whose positions the grid holds
+        self.tau: int | None = None
+        x, raw = initial_draws(params, seed)
+        self._upload(x, raw, np.zeros(n))
+        self._ensure_grid()
+        self._align(with_noise=False)  # phi_i(0), d_i(0) from eq. (4)
+        self._track_tau()
+
+    # ------------------------------------------------------------------ state
+    def _upload(self, x: np.ndarray, d: np.ndarray, phi: np.ndarray) -> None:
+        real = self.engine.real
+        self.pos.from_numpy(np.ascontiguousarray(np.asarray(x).T, dtype=real))
+        self.dirs.from_numpy(np.ascontiguousarray(np.asarray(d).T, dtype=real))
+        self.phi.from_numpy(np.ascontiguousarray(phi, dtype=real))
+        self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
+        self._grid_step = -1
+
+    def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
+        """Replace the state (``x``, ``d``, ``phi`` as :meth:`state` returns them); tau is tracked anew."""
+        self._upload(state["x"], state["d"], state["phi"])
+        self.step_index = step
+        self.tau = None
+        self._track_tau()
+
+    def state(self) -> dict[str, np.ndarray]:
+        ids = self.ids.to_numpy()
+        n, dim, real = self.params.n, self.params.dim, self.engine.real
+        x = np.empty((n, dim), dtype=real)
+        d = np.empty((n, dim), dtype=real)
+        phi = np.empty(n, dtype=real)
+        x[ids] = self.pos.to_numpy().T
+        d[ids] = self.dirs.to_numpy().T
+        phi[ids] = self.phi.to_numpy()
+        return {"x": x, "d": d, "phi": phi}
+
+    # ------------------------------------------------------------------ stepping
+    def _ensure_grid(self) -> None:
+        if self._grid_step != self.step_index:
+            self.grid.build(self.pos, self.ids)
+            self._grid_step = self.step_index
+
+    def _align(self, with_noise: bool) -> None:
+        p, g = self.params, self.grid.geometry
+        _align(self.step_index, self.seed, p.n, p.radius, p.box, p.noise, math.cos(p.noise), with_noise,
+               self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order,
+               self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
+               self.dirs, self.phi, self.ids)
+
+    def advance(self, steps: int) -> None:
+        p = self.params
+        for _ in range(steps):
+            _move(p.n, p.speed, self._alpha, self._tol, p.box, self._mode, self._boundary, p.dim, self.pos,
+                  self.dirs, self.phi)
+            self.grid.build(self.pos, self.ids)  # Gamma_i(k+1) from X(k+1)
+            self._align(with_noise=p.noise > 0)
+            self.step_index += 1
+            self._grid_step = self.step_index  # the step moved no agent after the build
+            self._track_tau()
+
+    # ------------------------------------------------------------------ metrics
+    def _sums(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Mean d, mean c d, mean c and mean c |d| over all agents (deterministic block sums)."""
+        p = self.params
+        _order_sums(p.n, self._alpha, self._tol, self._mode, p.dim, self.dirs, self.phi, self.partial)
+        total = self.partial.to_numpy().sum(axis=0) / p.n
+        return total[: p.dim], total[p.dim: 2 * p.dim], float(total[-2]), float(total[-1])
+
+    def _track_tau(self) -> None:
+        if self.tau is None and self._sums()[3] >= TRANSIENT_SPEED:
+            self.tau = self.step_index
+
+    def metrics(self) -> dict[str, float]:
+        p = self.params
+        self._ensure_grid()
+        mean_d, mean_v, c_alpha, speed = self._sums()
+        out = {"phi_theta": float(np.linalg.norm(mean_d)), "phi_v": float(np.linalg.norm(mean_v)),
+               "c_alpha": c_alpha, "mean_speed": speed}
+        out.update(self.graph.compute(p.radius, p.box))
+        out["tau"] = math.nan if self.tau is None else float(self.tau)
+        converged = out["largest_cluster"] == 1.0 and out["phi_theta"] >= 1 - CONVERGED_TOL
+        out["converged"] = float(converged)
+        return {name: out[name] for name in self.metric_descriptions}
+
+    # ------------------------------------------------------------------ drawing
+    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
+        """Agents coloured by heading, arrows of length proportional to the speed v0 phi^alpha."""
+        p = self.params
+        self._ensure_grid()
+        if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
+            self._drawing = SubsetDrawing(self.grid, selected)
+        m = len(selected)
+        out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * p.dim))
+        if m:
+            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, self._drawing.ids, self.grid.slot_of,
+                        self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, out)
+        rows = out.to_numpy()[:m]
+        spacing = p.box / p.n ** (1 / p.dim)
+        return Frame(
+            positions=rows[:, : p.dim].astype(np.float32),
+            directions=rows[:, p.dim:].astype(np.float32),
+            arrow_length=0.5 * p.radius,
+            edges=self._drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
+            radius=min(0.15 * p.radius, 0.3 * spacing),
+        )
+
+    def world(self) -> WorldSpec:
+        return WorldSpec(dim=self.params.dim, boundary=self.params.boundary, box=self.params.box, dt=self.dt)
