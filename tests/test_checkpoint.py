@@ -40,6 +40,8 @@ def test_resumed_run_is_bit_identical(make_sim, tmp_path, extra):
     ("vicsek", {"n": 300, "box": 12.0}),
     ("potential", {"n": 200, "box": 12.0}),
     ("potential", {"n": 60, "box": 8.0, "topology": "fixed", "graph": "tree"}),
+    ("adaptive", {"n": 300, "box": 5.0, "noise": 0.3}),
+    ("adaptive", {"n": 300, "box": 5.0, "dim": 3, "alpha": "inf"}),
 ])
 def test_every_model_resumes_bit_identically(make_sim, tmp_path, model, params):
     from tflock import Simulation

@@ -223,7 +223,7 @@ class Adaptive(Model):
         self._tol = agreement_tolerance(np.dtype(real).itemsize)
         self._drawing: SubsetDrawing | None = None
         self._grid_step = -1  # step whose positions the grid holds
-        self.tau: int | None = None
+        self.tau = -1  # first step with mean speed >= 0.98 v0; -1 until reached
         x, raw = initial_draws(params, seed)
         self._upload(x, raw, np.zeros(n))
         self._ensure_grid()
@@ -243,7 +243,7 @@ class Adaptive(Model):
         """Replace the state (``x``, ``d``, ``phi`` as :meth:`state` returns them); tau is tracked anew."""
         self._upload(state["x"], state["d"], state["phi"])
         self.step_index = step
-        self.tau = None
+        self.tau = -1
         self._track_tau()
 
     def state(self) -> dict[str, np.ndarray]:
@@ -290,7 +290,7 @@ class Adaptive(Model):
         return total[: p.dim], total[p.dim: 2 * p.dim], float(total[-2]), float(total[-1])
 
     def _track_tau(self) -> None:
-        if self.tau is None and self._sums()[3] >= TRANSIENT_SPEED:
+        if self.tau < 0 and self._sums()[3] >= TRANSIENT_SPEED:
             self.tau = self.step_index
 
     def metrics(self) -> dict[str, float]:
@@ -300,7 +300,7 @@ class Adaptive(Model):
         out = {"phi_theta": float(np.linalg.norm(mean_d)), "phi_v": float(np.linalg.norm(mean_v)),
                "c_alpha": c_alpha, "mean_speed": speed}
         out.update(self.graph.compute(p.radius, p.box))
-        out["tau"] = math.nan if self.tau is None else float(self.tau)
+        out["tau"] = math.nan if self.tau < 0 else float(self.tau)
         converged = out["largest_cluster"] == 1.0 and out["phi_theta"] >= 1 - CONVERGED_TOL
         out["converged"] = float(converged)
         return {name: out[name] for name in self.metric_descriptions}
