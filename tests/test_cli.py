@@ -319,3 +319,20 @@ def test_interrupt_exits_130_with_a_complete_recording(tmp_path: Path, sig: sign
     rows = csv_rows(table)
     assert len(rows) >= 1
     assert [int(row["step"]) for row in rows] == list(range(len(rows)))
+
+
+@pytest.mark.parametrize("delay", [0.3, 1.2, 2.0, 3.0, 4.5])
+def test_interrupt_at_any_point_is_clean(tmp_path: Path, delay: float) -> None:
+    """SIGTERM at points from start-up into the step loop: exit 130, one clean message, and any recording written
+    so far verifies (the first signal stops the run between steps)."""
+    rrd = tmp_path / "run.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "tflock", "sim", *SMALL, "--steps", "1000000", "--out", rrd.name],
+                            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    if rrd.exists() and rrd.stat().st_size > 0:
+        assert verify_recording(rrd)

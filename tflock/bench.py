@@ -84,17 +84,20 @@ class BenchResult:
         return out
 
 
+#: length parameters scaled with N to keep a model's default density
+LENGTHS = ("box", "world", "init_length", "init_width")
+
+
 def case_config(case: BenchCase) -> dict[str, Any]:
-    """The model's default config at N = case.n, same density (box side scaled by (n / n0)^(1/dim))."""
+    """The model's default config at N = case.n, same density (lengths scaled by (n / n0)^(1/dim))."""
     from tflock.config import load_config
 
-    default = load_config(model=case.model)
-    params = default.params
-    dim = getattr(params, "dim", 2)
-    box = float(params.box) * (case.n / params.n) ** (1.0 / dim)
+    params = load_config(model=case.model).params
+    scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
+    lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
     return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 1,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
-            "params": {"n": case.n, "box": box},
+            "params": {"n": case.n, **lengths},
             "log": {"max_agents": case.log_agents, "max_edges": 0, "every": 1, "metrics_every": 1}}
 
 
@@ -187,7 +190,7 @@ def run_case(case: BenchCase) -> BenchResult:
         sim = Simulation(case_config(case), record=record)
         model = sim.model
         result.engine = f"{sim.engine.arch}, {sim.engine.threads} threads, {sim.engine.precision}"
-        result.box = float(model.params.box)
+        result.box = float(next(getattr(model.params, k) for k in LENGTHS if hasattr(model.params, k)))
         result.setup_s = time.perf_counter() - t0
         result.first_step_s = _timed(lambda: model.advance(1), ti.sync) / 1e3
         if case.state == "developed":

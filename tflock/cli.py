@@ -77,8 +77,9 @@ def sim(
         fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
     record: bool | Path = False if no_log else (out_path or (not (spawn or connect)))
 
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # SLURM, timeout, docker stop: finish the file
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # also when started in the background
+    stop = _StopRequest()
+    signal.signal(signal.SIGTERM, stop.handler)  # SLURM, timeout, docker stop: finish the file
+    signal.signal(signal.SIGINT, stop.handler)  # also when started in the background
     from tflock.engine import EngineError
     from tflock.simulation import Simulation, default_recording_path
 
@@ -96,6 +97,10 @@ def sim(
     except KeyboardInterrupt:
         err.print("interrupted during start-up", highlight=False)
         raise typer.Exit(130) from None
+    if stop.requested:
+        simulation.close()
+        err.print("interrupted during start-up", highlight=False)
+        raise typer.Exit(130)
     t_ready = time.perf_counter()
     interrupted = False
     first_step_s = 0.0
@@ -115,6 +120,8 @@ def sim(
                     rate = (step - 1) / (now - t_loop) if step > 1 and now > t_loop else 0.0
                     progress.update(task, completed=step, rate=f"{rate:,.0f} steps/s")
                     t_last = now
+                if stop.requested:  # between steps: the state, metrics and recording are consistent
+                    raise _StopSignalError
 
             if cfg.steps > simulation.step_index:
                 t0 = time.perf_counter()
@@ -122,7 +129,7 @@ def sim(
                 first_step_s = time.perf_counter() - t0
                 t_loop = time.perf_counter()
                 simulation.run(tick)
-    except KeyboardInterrupt:
+    except (_StopSignalError, KeyboardInterrupt):
         interrupted = True
     finally:
         simulation.close()
@@ -130,6 +137,23 @@ def sim(
     _summary(simulation, t_start, t_ready, first_step_s, t_loop, t_end, interrupted)
     if interrupted:
         raise typer.Exit(130)
+
+
+class _StopSignalError(Exception):
+    """Raised between two steps after SIGINT / SIGTERM."""
+
+
+class _StopRequest:
+    """The first SIGINT / SIGTERM asks the run to stop after the current step (so a kernel, a frame or a file write
+    is never cut in half); a second one interrupts at once."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def handler(self, signum: int, frame: object) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
 
 
 def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_loop: float, t_end: float,

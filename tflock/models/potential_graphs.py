@@ -24,8 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from tflock.rng import hash_np, pair_hash_np, randint_np
-
 #: stream ids of this model's random draws (tflock.rng.Stream holds 0-11; models define theirs from 200)
 STREAM_GRAPH = 201
 STREAM_TREE = 202
@@ -57,6 +55,7 @@ def complete_edges(n: int) -> np.ndarray:
 
 def tree_edges(n: int, seed: int) -> np.ndarray:
     """Random recursive tree: agent i > 0 is attached to j uniform in {0, ..., i - 1}."""
+    from tflock.rng import hash_np, randint_np  # lazily: params validation stays Taichi-free
     child = np.arange(1, n)
     parent = randint_np(hash_np(seed, 0, child, STREAM_TREE), child)
     return np.stack([parent, child], axis=1)
@@ -64,6 +63,7 @@ def tree_edges(n: int, seed: int) -> np.ndarray:
 
 def random_edges(n: int, p: float, seed: int, attempt: int) -> np.ndarray:
     """G(n, p): pair (i, j), i < j, is an edge when its uniform draw is < p (24-bit draws, as everywhere)."""
+    from tflock.rng import pair_hash_np  # lazily: params validation stays Taichi-free
     i, j = np.triu_indices(n, k=1)
     u = (pair_hash_np(seed, attempt, i, j, STREAM_GRAPH) >> np.uint32(8)).astype(np.float64) / (1 << 24)
     keep = u < p
