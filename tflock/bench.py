@@ -209,7 +209,7 @@ def run_case(case: BenchCase) -> BenchResult:
             metrics.update(model.metrics())
 
         result.metrics_ms = _timed(measure, ti.sync)
-        result.mean_neighbors = float(metrics.get("mean_neighbors", float("nan")))
+        result.mean_neighbors = float(metrics.get("mean_neighbors", metrics.get("valency_mean", float("nan"))))
         if case.log:
             result.logging_ms = _timed(lambda: sim.recorder.log_frame(
                 model.step_index, model.frame(sim._selected, 0)), ti.sync)

@@ -27,7 +27,7 @@ import taichi as ti
 from tflock.engine import EngineInfo
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
-from tflock.models.base import Model
+from tflock.models.base import GridModel
 from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.rng import Stream, uniform_np, uniform_ti
@@ -182,7 +182,7 @@ def _frame_rows(m: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: t
             out[r, dim + a] = c * dirs[a, e]
 
 
-class Adaptive(Model):
+class Adaptive(GridModel):
     """Li-Wang adaptive velocity on the cell grid (hashed cells in open space), 2D and 3D.
 
     The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each
@@ -258,10 +258,6 @@ class Adaptive(Model):
         return {"x": x, "d": d, "phi": phi}
 
     # ------------------------------------------------------------------ stepping
-    def _ensure_grid(self) -> None:
-        if self._grid_step != self.step_index:
-            self.grid.build(self.pos, self.ids)
-            self._grid_step = self.step_index
 
     def _align(self, with_noise: bool) -> None:
         p, g = self.params, self.grid.geometry

@@ -84,3 +84,23 @@ class Model(ABC):
 
     def invalidate(self) -> None:  # noqa: B027 (an optional hook: models without derived data need nothing)
         """Forget data derived from the state (e.g. a neighbour grid) after the state was replaced."""
+
+
+class GridModel(Model):
+    """A model whose positions ``pos`` and agent ids ``ids`` feed one cell grid ``grid``, built lazily once per
+    step (``_grid_step`` is the step whose positions the grid holds)."""
+
+    _grid_step = -1
+
+    def _ensure_grid(self) -> None:
+        if self._grid_step != self.step_index:
+            self.grid.build(self.pos, self.ids)
+            self._grid_step = self.step_index
+
+    def invalidate(self) -> None:
+        self._grid_step = -1
+
+    def build_neighbours(self) -> None:
+        """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
+        self.invalidate()
+        self._ensure_grid()

@@ -31,7 +31,7 @@ import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
-from tflock.models.base import Model
+from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
 from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
@@ -183,7 +183,7 @@ def _gather(m: ti.i32, n: ti.i32, dim: ti.template(), agents: ti.types.ndarray()
             out[r, dim + a] = vel[a, e]
 
 
-class Potential(Model):
+class Potential(GridModel):
     """Potential-field flocking of double integrators, fixed or switching topology, 2D or 3D (see the module)."""
 
     name = "potential"
@@ -267,9 +267,6 @@ class Potential(Model):
         self._lambda2_step = -1  # step of the last lambda_2 (plain numbers: checkpoints keep them)
         self._lambda2_value = 0.0
 
-    def invalidate(self) -> None:
-        self._grid_step = -1
-
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
         x = np.empty((self.params.n, self.dim), dtype=self.engine.real)
@@ -277,11 +274,6 @@ class Potential(Model):
         x[ids] = self.pos.to_numpy().T
         v[ids] = self.vel.to_numpy().T
         return {"x": x, "v": v}
-
-    def _ensure_grid(self) -> None:
-        if self._grid_step != self.step_index:
-            self.grid.build(self.pos, self.ids)
-            self._grid_step = self.step_index
 
     def advance(self, steps: int) -> None:
         p = self.params

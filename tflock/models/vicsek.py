@@ -33,7 +33,7 @@ import taichi as ti
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
 from tflock.metrics import EXACT_PAIRS_MAX, SAMPLED_PAIRS, NeighbourGraph, heading_order, mean, pairwise_errors
-from tflock.models.base import Model
+from tflock.models.base import GridModel
 from tflock.neighbors import (
     CellGrid,
     SubsetDrawing,
@@ -193,7 +193,7 @@ def _frame_rows(m: ti.i32, selected: ti.types.ndarray(), slot_of: ti.types.ndarr
         out[r, 3] = updated[a]
 
 
-class Vicsek(Model):
+class Vicsek(GridModel):
     """Vicsek / Jadbabaie / Samiloglu-Gazi-Koku heading alignment on the cell grid.
 
     Synchronous updates, or with ``async_bound`` B > 1 the partially asynchronous updates of Samiloglu-Gazi-Koku
@@ -296,19 +296,6 @@ class Vicsek(Model):
     def updated_agents(self) -> np.ndarray:
         """Boolean mask (agent order) of the agents that updated their heading at the last step."""
         return self.updated.to_numpy().astype(bool)
-
-    def invalidate(self) -> None:
-        self._grid_step = -1
-
-    def build_neighbours(self) -> None:
-        """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
-        self._grid_step = -1
-        self._ensure_grid()
-
-    def _ensure_grid(self) -> None:
-        if self._grid_step != self.step_index:
-            self.grid.build(self.pos, self.ids)
-            self._grid_step = self.step_index
 
     def advance(self, steps: int) -> None:
         p = self.params
