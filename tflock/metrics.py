@@ -22,7 +22,7 @@ from tflock.neighbors import (
     stencil_span,
 )
 from tflock.rng import Stream, hash_ti, randint_ti
-from tflock.space import OPEN, displacement
+from tflock.space import OPEN, displacement, wrap_pi
 
 BLOCK = 4096
 
@@ -198,8 +198,7 @@ SAMPLED_PAIRS = 1 << 16
 @ti.func
 def _pair_terms(pos: ti.template(), theta: ti.template(), i, j, box, boundary: ti.template(), dim: ti.template()):
     d = displacement(load_vec(pos, i, dim), load_vec(pos, j, dim), box, boundary)
-    a = theta[j] - theta[i]
-    return d.norm(), ti.abs(a - 2 * math.pi * ti.floor((a + math.pi) / (2 * math.pi)))
+    return d.norm(), ti.abs(wrap_pi(theta[j] - theta[i]))
 
 
 @ti.kernel

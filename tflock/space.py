@@ -1,9 +1,12 @@
-"""Boundaries of the simulated space: periodic box (minimum image), reflecting box (mirror), open plane/space.
+"""Boundaries of the simulated space: periodic box (minimum image), reflecting box (mirror), open plane/space;
+and the wrapping of angles.
 
 Boundary codes are compile-time constants of the kernels (``ti.template()`` arguments), so each kernel is
 specialised to one boundary and carries no branch on it.
 """
 
+
+import math
 
 import taichi as ti
 
@@ -54,3 +57,21 @@ def reflect(p, box):
             p[k] = 2 * box - p[k]
             flips[k] = 1
     return p, flips
+
+
+TWO_PI = 2 * math.pi
+
+
+@ti.func
+def wrap_pi(a):
+    """Angle into [-pi, pi)."""
+    return a - TWO_PI * ti.floor((a + math.pi) / TWO_PI)
+
+
+@ti.func
+def wrap_two_pi(a):
+    """Angle into [0, 2 pi) (headings, as 003 defines them)."""
+    a -= TWO_PI * ti.floor(a / TWO_PI)
+    if a >= TWO_PI or a < 0:
+        a = 0.0
+    return a

@@ -28,9 +28,10 @@ from tflock.engine import EngineInfo
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
-from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_ivec, load_vec, same_cell, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
-from tflock.rng import Stream, uniform_np, uniform_ti
+from tflock.reference.adaptive import initial_draws
+from tflock.rng import Stream, uniform_ti
 from tflock.space import OPEN, PERIODIC, boundary_code, displacement, wrap_periodic
 
 TWO_PI = 2 * math.pi
@@ -39,20 +40,6 @@ TRANSIENT_SPEED = 0.98
 #: converged: one cluster (S = 1) and Phi_theta >= 1 - CONVERGED_TOL
 CONVERGED_TOL = 1e-3
 FINITE, INFINITE = 0, 1
-
-
-def initial_draws(params: AdaptiveParams, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """X(0) uniform in [0, L)^d and raw directions uniform on the circle / sphere, (n, d) float64 each."""
-    ids = np.arange(params.n)
-    axes = (Stream.INIT_X, Stream.INIT_Y, Stream.INIT_Z)[: params.dim]
-    x = np.stack([params.box * uniform_np(seed, 0, ids, s) for s in axes], axis=1)
-    u = uniform_np(seed, 0, ids, Stream.INIT_HEADING)
-    if params.dim == 2:
-        return x, np.stack([np.cos(TWO_PI * u), np.sin(TWO_PI * u)], axis=1)
-    z = 1 - 2 * u  # z uniform in [-1, 1] with an independent azimuth: uniform on the sphere (Archimedes)
-    azimuth = TWO_PI * uniform_np(seed, 0, ids, Stream.INIT_HEADING_2)
-    r = np.sqrt(np.maximum(0.0, 1 - z * z))
-    return x, np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
 
 
 @ti.func
@@ -221,7 +208,6 @@ class Adaptive(GridModel):
         self._mode = INFINITE if params.alpha == "inf" else FINITE
         self._alpha = 0.0 if params.alpha == "inf" else float(params.alpha)
         self._tol = agreement_tolerance(np.dtype(real).itemsize)
-        self._drawing: SubsetDrawing | None = None
         self._grid_step = -1  # step whose positions the grid holds
         self.tau = -1  # first step with mean speed >= 0.98 v0; -1 until reached
         x, raw = initial_draws(params, seed)
@@ -305,13 +291,11 @@ class Adaptive(GridModel):
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
         """Agents coloured by heading, arrows of length proportional to the speed v0 phi^alpha."""
         p = self.params
-        self._ensure_grid()
-        if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
-            self._drawing = SubsetDrawing(self.grid, selected)
+        drawing = self.drawing(selected)
         m = len(selected)
         out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * p.dim))
         if m:
-            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, self._drawing.ids, self.grid.slot_of,
+            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.ids, self.grid.slot_of,
                         self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, out)
         rows = out.to_numpy()[:m]
         spacing = p.box / p.n ** (1 / p.dim)
@@ -319,7 +303,7 @@ class Adaptive(GridModel):
             positions=rows[:, : p.dim].astype(np.float32),
             directions=rows[:, p.dim:].astype(np.float32),
             arrow_length=0.5 * p.radius,
-            edges=self._drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
+            edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
             radius=min(0.15 * p.radius, 0.3 * spacing),
         )
 

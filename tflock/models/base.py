@@ -7,6 +7,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.neighbors import SubsetDrawing
 from tflock.record import Frame, WorldSpec
 
 
@@ -104,3 +105,10 @@ class GridModel(Model):
         """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""
         self.invalidate()
         self._ensure_grid()
+
+    def drawing(self, selected: np.ndarray) -> SubsetDrawing:
+        """The drawn subset on the current grid (its index arrays are uploaded once per subset)."""
+        self._ensure_grid()
+        if getattr(self, "_drawing", None) is None or not np.array_equal(self._drawing.selected_ids, selected):
+            self._drawing = SubsetDrawing(self.grid, selected)
+        return self._drawing

@@ -66,7 +66,7 @@ from tflock.neighbors import CellGrid, load_ivec, load_vec, span_count, stencil_
 from tflock.record import Frame, Marker, WorldSpec
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
-from tflock.space import PERIODIC, displacement, wrap_periodic
+from tflock.space import PERIODIC, displacement, wrap_periodic, wrap_pi, wrap_two_pi
 
 TWO_PI = 2 * math.pi
 # slots of the constants array
@@ -78,21 +78,6 @@ IN_FLAG, RAMP_START = range(2)
 RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
 VA_COLOR = (255, 210, 0)
 SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
-
-
-@ti.func
-def wrap_pi(a):
-    """Angle into [-pi, pi)."""
-    return a - TWO_PI * ti.floor((a + math.pi) / TWO_PI)
-
-
-@ti.func
-def wrap_two_pi(a):
-    """Angle into [0, 2 pi)."""
-    a -= TWO_PI * ti.floor(a / TWO_PI)
-    if a >= TWO_PI or a < 0:
-        a = 0.0
-    return a
 
 
 @ti.func

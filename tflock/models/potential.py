@@ -34,7 +34,7 @@ from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
-from tflock.neighbors import CellGrid, SubsetDrawing, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_ivec, load_vec, same_cell, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.space import OPEN
 
@@ -207,7 +207,6 @@ class Potential(GridModel):
         self.grid = CellGrid(n, dim, "open", params.box, params.radius, real)
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1
-        self._drawing = None
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
             offsets, neighbours = to_csr(n, self.edges)
@@ -395,10 +394,7 @@ class Potential(GridModel):
         rows = self._rows(selected)
         pos, vel = rows[:, :dim], rows[:, dim:]
         if self.switching:
-            self._ensure_grid()
-            if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
-                self._drawing = SubsetDrawing(self.grid, selected)
-            edges = self._drawing.edges(p.box, p.radius, max_edges)
+            edges = self.drawing(selected).edges(p.box, p.radius, max_edges)
         else:
             edges = self._fixed_edges(selected, pos, max_edges)
         return Frame(

@@ -36,7 +36,6 @@ from tflock.metrics import EXACT_PAIRS_MAX, SAMPLED_PAIRS, NeighbourGraph, headi
 from tflock.models.base import GridModel
 from tflock.neighbors import (
     CellGrid,
-    SubsetDrawing,
     load_ivec,
     load_vec,
     same_cell,
@@ -45,7 +44,17 @@ from tflock.neighbors import (
 )
 from tflock.record import Frame, WorldSpec, heading_colors
 from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, uniform_np, uniform_ti
-from tflock.space import OPEN, PERIODIC, REFLECTING, boundary_code, displacement, reflect, wrap_periodic
+from tflock.space import (
+    OPEN,
+    PERIODIC,
+    REFLECTING,
+    boundary_code,
+    displacement,
+    reflect,
+    wrap_periodic,
+    wrap_pi,
+    wrap_two_pi,
+)
 
 RULES = {"vector": 0, "average": 1, "relative": 2, "laplacian": 3}
 VECTOR, AVERAGE, RELATIVE, LAPLACIAN = 0, 1, 2, 3
@@ -61,21 +70,6 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
     if params.leader.enabled:
         theta[0] = math.radians(params.leader.heading_deg) % TWO_PI
     return {"x": x, "theta": theta}
-
-
-@ti.func
-def wrap_pi(a):
-    """Angle into [-pi, pi)."""
-    return a - TWO_PI * ti.floor((a + math.pi) / TWO_PI)
-
-
-@ti.func
-def wrap_two_pi(a):
-    """Angle into [0, 2 pi)."""
-    a -= TWO_PI * ti.floor(a / TWO_PI)
-    if a >= TWO_PI or a < 0:
-        a = 0.0
-    return a
 
 
 @ti.kernel
@@ -250,7 +244,6 @@ class Vicsek(GridModel):
         self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real)
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
-        self._drawing: SubsetDrawing | None = None
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
         self.set_state(initial_state(params, seed), 0)
@@ -330,10 +323,8 @@ class Vicsek(GridModel):
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
         """Agents coloured by heading; with asynchrony, those that did not update at this step are dimmed."""
         p = self.params
-        self._ensure_grid()
-        if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
-            self._drawing = SubsetDrawing(self.grid, selected)
-        rows = self._rows(self._drawing.ids, len(selected))
+        drawing = self.drawing(selected)
+        rows = self._rows(drawing.ids, len(selected))
         directions = np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32)
         colors = None
         if self.asynchronous:
@@ -349,7 +340,7 @@ class Vicsek(GridModel):
             directions=directions,
             arrow_length=0.5 * p.radius,
             colors=colors,
-            edges=self._drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
+            edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
             leader=leader,
             leader_direction=leader_direction,
             radius=0.15 * p.radius,
