@@ -67,7 +67,7 @@ def sim(
         if resume is not None:
             from tflock.simulation import read_checkpoint
 
-            saved = tomllib.loads(str(read_checkpoint(resume)["config_toml"]))
+            saved = tomllib.loads(str(read_checkpoint(resume, arrays=False)["config_toml"]))
             cfg = load_config(saved, overrides=overrides)
         else:
             cfg = load_config(config, model=model, overrides=overrides)

@@ -32,15 +32,18 @@ def n_blocks(n: int) -> int:
 
 
 @ti.kernel
-def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
+def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, reference: float, partial: ti.types.ndarray()):
     for blk in range(partial.shape[0]):
         c = 0.0
         s = 0.0
+        gap = 0.0
         for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
             c += ti.cos(theta[i])
             s += ti.sin(theta[i])
+            gap += ti.abs(wrap_pi(theta[i] - reference))
         partial[blk, 0] = c
         partial[blk, 1] = s
+        partial[blk, 2] = gap
 
 
 @functools.lru_cache(maxsize=8)
@@ -48,12 +51,13 @@ def _scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
     return ti.ndarray(dtype, shape)
 
 
-def heading_order(theta: ti.Ndarray, n: int) -> tuple[float, float]:
-    """Polarization |mean (cos, sin)| and circular mean heading in [0, 2 pi) (Vicsek 1995 order parameter)."""
-    partial = _scratch((n_blocks(n), 2), theta.dtype)
-    _angle_block_sums(theta, n, partial)
-    c, s = partial.to_numpy().astype(np.float64).sum(axis=0) / n
-    return float(math.hypot(c, s)), float(math.atan2(s, c) % (2 * math.pi))
+def heading_order(theta: ti.Ndarray, n: int, reference: float = 0.0) -> tuple[float, float, float]:
+    """Polarization |mean (cos, sin)| (Vicsek 1995 order parameter), circular mean heading in [0, 2 pi), and the
+    sum over agents of |wrap(theta - reference)| (e.g. the followers' distance to a leader's heading)."""
+    partial = _scratch((n_blocks(n), 3), theta.dtype)
+    _angle_block_sums(theta, n, reference, partial)
+    c, s, gap = partial.to_numpy().astype(np.float64).sum(axis=0)
+    return float(math.hypot(c, s) / n), float(math.atan2(s, c) % (2 * math.pi)), float(gap)
 
 
 @ti.func
@@ -183,7 +187,7 @@ def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray
 
 
 def mean(values: ti.Ndarray, n: int) -> float:
-    """Deterministic mean of an (n,) float ndarray."""
+    """Deterministic mean of an (n,) ndarray (floats, or ints summed exactly per block)."""
     partial = _scratch((n_blocks(n),), values.dtype)
     _block_sums(values, n, partial)
     return float(partial.to_numpy().astype(np.float64).sum()) / n

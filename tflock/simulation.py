@@ -53,19 +53,20 @@ def drawn_subset(n: int, max_agents: int, seed: int) -> np.ndarray:
 CHECKPOINT_FORMAT = 1
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The arrays of a checkpoint written by :meth:`Simulation.save_checkpoint` (no pickles are loaded)."""
+def read_checkpoint(path: str | Path, *, arrays: bool = True) -> dict[str, Any]:
+    """A checkpoint written by :meth:`Simulation.save_checkpoint` (no pickles are loaded); with
+    ``arrays=False`` only its config and recording id, without reading the state arrays."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"--resume: checkpoint not found: {path}")
     try:
         with np.load(path, allow_pickle=False) as data:
-            checkpoint = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
-        raise ConfigError(f"--resume: {path} is not a tflock checkpoint ({e})") from None
-    if int(checkpoint.get("format", -1)) != CHECKPOINT_FORMAT or "config_toml" not in checkpoint:
-        raise ConfigError(f"--resume: {path} is not a tflock checkpoint (format {CHECKPOINT_FORMAT})")
-    return checkpoint
+            if int(data["format"]) != CHECKPOINT_FORMAT or "config_toml" not in data.files:
+                raise KeyError("format")
+            keys = data.files if arrays else ["config_toml", "recording_id", "step"]
+            return {k: data[k] for k in keys}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        raise ConfigError(f"--resume: {path} is not a tflock checkpoint (format {CHECKPOINT_FORMAT})") from None
 
 
 def default_recording_path(model: str) -> Path:

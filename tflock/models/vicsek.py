@@ -213,6 +213,7 @@ class Vicsek(GridModel):
         n, real = params.n, engine.real
         exact = n <= EXACT_PAIRS_MAX
         estimate = "" if exact else f" (estimate from {SAMPLED_PAIRS} sampled pairs)"
+        self._pair_names = ("e_d", "e_theta") if exact else ("e_d_est", "e_theta_est")
         self.metric_descriptions = {
             "polarization": "polarization |mean unit heading| (Vicsek order parameter)",
             "mean_heading": "circular mean heading (rad)",
@@ -220,8 +221,8 @@ class Vicsek(GridModel):
             "max_neighbors": "max neighbour count",
             "clusters": "clusters (components of the R-graph)",
             "largest_cluster": "largest cluster fraction S",
-            "e_d" if exact else "e_d_est": "e_d mean pairwise distance" + estimate,
-            "e_theta" if exact else "e_theta_est": "e_theta mean pairwise heading difference (rad)" + estimate,
+            self._pair_names[0]: "e_d mean pairwise distance" + estimate,
+            self._pair_names[1]: "e_theta mean pairwise heading difference (rad)" + estimate,
             "de_theta": "de_theta mean heading change per step (rad)",
             "updated": "fraction of agents that updated at this step",
         }
@@ -307,17 +308,16 @@ class Vicsek(GridModel):
     def metrics(self) -> dict[str, float]:
         p = self.params
         self._ensure_grid()
-        polarization, mean_heading = heading_order(self.theta, p.n)
+        leader_heading = float(self._rows(self._leader_id, 1)[0, 2]) if p.leader.enabled else 0.0
+        polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
         out = {"polarization": polarization, "mean_heading": mean_heading}
         out.update(self.graph.compute(p.radius, p.box))
-        e_d, e_theta = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2,
-                                       self.seed, self.step_index)
-        out.update(e_d=e_d, e_d_est=e_d, e_theta=e_theta, e_theta_est=e_theta, de_theta=mean(self.turn, p.n),
-                   updated=float(self.updated.to_numpy().mean()))
-        if p.leader.enabled:
-            theta = self.state()["theta"].astype(np.float64)
-            diff = np.abs((theta[1:] - theta[0] + math.pi) % TWO_PI - math.pi)
-            out["leader_error"] = float(diff.mean()) if p.n > 1 else 0.0
+        pairs = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2, self.seed,
+                                self.step_index)
+        out.update(zip(self._pair_names, pairs, strict=True))
+        out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
+        if p.leader.enabled:  # the leader's own term is 0
+            out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
         return {name: out[name] for name in self.metric_descriptions}
 
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
