@@ -15,7 +15,7 @@ import taichi as ti
 
 from tflock.neighbors import (
     CellGrid,
-    load_ivec,
+    load_cell,
     load_vec,
     same_cell,
     span_count,
@@ -111,7 +111,7 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         size[s] = 0
     for s in range(n):  # degrees: branch-free, vectorisable
         p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         count = 0
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
@@ -124,7 +124,7 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         degree[id_sorted[s]] = count
     for s in range(n):  # union(s, k) for every neighbour k < s
         p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         root = s  # a recent root of s's set: saves walking s's chain for every neighbour
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
@@ -159,13 +159,16 @@ class NeighbourGraph:
         self.result = ti.ndarray(ti.i32, 3)
         self.partial = ti.ndarray(ti.i64, n_blocks(n))
 
-    def compute(self, radius: float, box: float) -> dict[str, float]:
-        """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""
+    def _run(self, radius: float, box: float) -> None:
         g = self.grid.geometry
-        n = self.grid.n
-        _graph(n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
+        _graph(self.grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
                self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent, self.size,
                self.degree, self.result)
+
+    def compute(self, radius: float, box: float) -> dict[str, float]:
+        """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""
+        n = self.grid.n
+        self._run(radius, box)
         _block_sums(self.degree, n, self.partial)
         clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())
         return {
@@ -173,6 +176,27 @@ class NeighbourGraph:
             "largest_cluster": largest / n,
             "mean_neighbors": float(self.partial.to_numpy().sum()) / n,
             "max_neighbors": float(max_degree),
+        }
+
+    def compute_replicas(self, radius: float, box: float) -> dict[str, np.ndarray]:
+        """:meth:`compute` for each replica of a batched grid (arrays of length ``grid.replicas``).
+
+        One kernel pass over the whole batch (no edge joins two replicas, so every component lies in one), then
+        the per-replica counts in NumPy.
+        """
+        self._run(radius, box)
+        replicas, per = self.grid.replicas, self.grid.geometry.agents_per_replica
+        parent = self.parent.to_numpy()
+        roots = parent == np.arange(self.grid.n)
+        replica_of_root = self.grid.id_sorted.to_numpy()[roots] // per
+        largest = np.zeros(replicas, dtype=np.int64)
+        np.maximum.at(largest, replica_of_root, self.size.to_numpy()[roots])
+        degree = self.degree.to_numpy().reshape(replicas, per)  # agent order: replica-major
+        return {
+            "clusters": np.bincount(replica_of_root, minlength=replicas).astype(np.float64),
+            "largest_cluster": largest / per,
+            "mean_neighbors": degree.sum(axis=1) / per,
+            "max_neighbors": degree.max(axis=1).astype(np.float64),
         }
 
 
@@ -249,3 +273,32 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
     partial = _scratch((SAMPLED_PAIRS, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
     return tuple(partial.to_numpy().astype(np.float64).mean(axis=0))
+
+
+@ti.kernel
+def _replica_pairs_exact(pos: ti.types.ndarray(), theta: ti.types.ndarray(), per_replica: ti.i32, box: float,
+                         boundary: ti.template(), dim: ti.template(), slot_of: ti.types.ndarray(),
+                         order: ti.types.ndarray(), partial: ti.types.ndarray()):
+    for a in range(partial.shape[0]):  # agent a against the later agents of its replica, in agent order
+        dist = 0.0
+        angle = 0.0
+        ea = order[slot_of[a]]
+        for b in range(a + 1, (a // per_replica + 1) * per_replica):
+            u, v = _pair_terms(pos, theta, ea, order[slot_of[b]], box, boundary, dim)
+            dist += u
+            angle += v
+        partial[a, 0] = dist
+        partial[a, 1] = angle
+
+
+def replica_pairwise_errors(grid: CellGrid, pos: ti.Ndarray, theta: ti.Ndarray, box: float, boundary: int,
+                            dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pairwise_errors` (exact) of each replica of a batch whose state arrays follow `grid`'s current
+    arrangement (element of agent a = ``order[slot_of[a]]``): arrays e_d and e_theta of length ``grid.replicas``."""
+    per = grid.geometry.agents_per_replica
+    if per < 2:
+        return np.zeros(grid.replicas), np.zeros(grid.replicas)
+    partial = _scratch((grid.n, 2), pos.dtype)
+    _replica_pairs_exact(pos, theta, per, box, boundary, dim, grid.slot_of, grid.order, partial)
+    sums = partial.to_numpy().astype(np.float64).reshape(grid.replicas, per, 2).sum(axis=1) / (per * (per - 1) / 2)
+    return sums[:, 0], sums[:, 1]

@@ -9,11 +9,15 @@ thread timing. A query visits the 3^d cells around an agent's cell.
   and a box with fewer than 3 cells per side visits each distinct cell once.
 - open space: cells of side R are hashed into a table of about 2n buckets; a bucket may hold several cells, so a
   query keeps only agents whose cell coordinates equal the visited cell (no double counting, no box assumed).
+- replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
+  shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
+  Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
+  order as in a run of that replica alone (bit-identical results).
 
 Models loop over neighbours themselves, with the helpers below, inside their own kernels:
 
     for s in range(n):                      # agents in cell order
-        c = coords_sorted[s]
+        c = load_cell(coords_sorted, s, dim)   # cell coordinates and replica
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):
@@ -34,26 +38,31 @@ _HASH = (73856093, 19349663, 83492791)
 
 @dataclass(frozen=True)
 class GridGeometry:
-    """Cell layout: side length, cells per side (box modes) and bucket count."""
+    """Cell layout: side length, cells per side (box modes), buckets of one replica (what kernels take as
+    ``n_buckets``), buckets of the whole grid, and agents per replica."""
 
     dim: int
     boundary: int
     cell_size: float
     cells_per_side: int
     n_buckets: int
+    total_buckets: int
+    agents_per_replica: int
 
 
-def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float) -> GridGeometry:
-    """Choose cells of side >= radius: a tiling of the box, or a hash table of ~2n buckets in open space."""
+def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, replicas: int = 1) -> GridGeometry:
+    """Choose cells of side >= radius: a tiling of the box, or a hash table of ~2n buckets in open space, for
+    each replica of n / replicas agents as for a lone system of that size."""
     code = boundary_code(boundary)
+    per_replica = n // replicas
     if code == OPEN:
-        n_buckets = 1 << max(4, math.ceil(math.log2(2 * n)))
-        return GridGeometry(dim, code, float(radius), 0, n_buckets)
+        n_buckets = 1 << max(4, math.ceil(math.log2(2 * per_replica)))
+        return GridGeometry(dim, code, float(radius), 0, n_buckets, replicas * n_buckets, per_replica)
     per_side = max(1, int(box // radius))
-    cap = max(64, 4 * n)
+    cap = max(64, 4 * per_replica)
     if per_side**dim > cap:
         per_side = max(1, int(cap ** (1.0 / dim)))
-    return GridGeometry(dim, code, box / per_side, per_side, per_side**dim)
+    return GridGeometry(dim, code, box / per_side, per_side, per_side**dim, replicas * per_side**dim, per_replica)
 
 
 @ti.func
@@ -69,14 +78,16 @@ def cell_coords(p, cell_size, nc, boundary: ti.template()):
 
 @ti.func
 def bucket_of_cell(c, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
-    """Bucket index of cell c: row-major in a box, a spatial hash in open space."""
+    """Bucket index of cell c = (cell coordinates, replica) among the grid's buckets: the replica's block of
+    `n_buckets`, then row-major in a box or a spatial hash in open space."""
     b = 0
     if ti.static(boundary == OPEN):
         h = ti.u32(0)
         for k in ti.static(range(dim)):
             h ^= ti.cast(c[k], ti.u32) * ti.u32(_HASH[k])
-        b = ti.cast(h % ti.u32(n_buckets), ti.i32)
+        b = c[dim] * n_buckets + ti.cast(h % ti.u32(n_buckets), ti.i32)
     else:
+        b = c[dim]
         for k in ti.static(range(dim)):
             b = b * nc + c[dim - 1 - k]
     return b
@@ -93,7 +104,8 @@ def span_count(boundary: int, dim: int) -> int:
 
 @ti.func
 def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template()):
-    """The o-th span of buckets [lo, hi) around cell c, and the cell it stands for (open space).
+    """The o-th span of buckets [lo, hi) around cell c (cell coordinates, then replica), and the cell it stands
+    for (open space). Spans stay inside c's replica.
 
     In a box, buckets are row-major, so the cells x-1..x+1 of a stencil row are one contiguous span of sorted
     agents (a single loop with no per-cell overhead); at a periodic edge the row wraps into a second span.
@@ -113,7 +125,7 @@ def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template(
         row = o // 2  # divisions by constants only: cheap, and folded away where a loop is unrolled
         seg = o % 2
         ok = True
-        b = 0
+        b = c[dim]  # the replica's block of buckets
         for k in ti.static(range(dim - 1, 0, -1)):  # row-major: the last axis varies slowest
             off = (row // ti.static(3 ** (k - 1))) % 3 - 1
             t = c[k] + off
@@ -151,10 +163,10 @@ def stencil_span(c, o, nc, n_buckets, boundary: ti.template(), dim: ti.template(
 
 @ti.func
 def same_cell(coords_sorted: ti.template(), k, cell, boundary: ti.template(), dim: ti.template()):
-    """1 when sorted agent k lies in `cell` (always 1 in a box, where a bucket is one cell)."""
+    """1 when sorted agent k lies in `cell`, replica included (always 1 in a box, where a bucket is one cell)."""
     same = 1
     if ti.static(boundary == OPEN):
-        for d in ti.static(range(dim)):
+        for d in ti.static(range(dim + 1)):
             same &= ti.select(coords_sorted[d, k] == cell[d], 1, 0)
     return same
 
@@ -170,37 +182,42 @@ def load_vec(arr: ti.template(), i, dim: ti.template()):
 
 
 @ti.func
-def load_ivec(arr: ti.template(), i, dim: ti.template()):
-    return ti.Vector([arr[d, i] for d in ti.static(range(dim))], dt=ti.i32)
+def load_cell(coords: ti.template(), i, dim: ti.template()):
+    """Column i of a grid's (dim + 1, n) cell array: the cell coordinates and, last, the replica."""
+    return ti.Vector([coords[d, i] for d in ti.static(range(dim + 1))], dt=ti.i32)
 
 
 @ti.kernel
-def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, cell_size: float, nc: ti.i32,
-           n_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
+def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_replica: ti.i32, cell_size: float,
+           nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray()):
-    for b in range(n_buckets):
+    for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
-        c = cell_coords(load_vec(pos, e, dim), cell_size, nc, boundary)
+        local = cell_coords(load_vec(pos, e, dim), cell_size, nc, boundary)
+        c = ti.Vector([0] * (dim + 1), dt=ti.i32)
         for d in ti.static(range(dim)):
+            c[d] = local[d]
+        c[dim] = ids[e] // per_replica
+        for d in ti.static(range(dim + 1)):
             coords[d, e] = c[d]
         b = bucket_of_cell(c, nc, n_buckets, boundary, dim)
         bucket[e] = b
         ti.atomic_add(counts[b], 1)
     # exclusive scan, serial: a few ms for 1e6 buckets on the CPU
     ti.loop_config(serialize=True)
-    for b in range(n_buckets + 1):
+    for b in range(total_buckets + 1):
         if b == 0:
             start[0] = 0
         else:
             start[b] = start[b - 1] + counts[b - 1]
-    for b in range(n_buckets):
+    for b in range(total_buckets):
         counts[b] = start[b]  # reused as the scatter cursor
     for e in range(n):
         order[ti.atomic_add(counts[bucket[e]], 1)] = e
-    for b in range(n_buckets):  # insertion sort of each bucket by agent id: deterministic neighbour order
+    for b in range(total_buckets):  # insertion sort of each bucket by agent id: deterministic neighbour order
         lo = start[b]
         for k in range(lo + 1, start[b + 1]):
             v = order[k]
@@ -217,6 +234,7 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, cell_siz
         slot_of[a] = s
         for d in ti.static(range(dim)):
             pos_sorted[d, s] = pos[d, e]
+        for d in ti.static(range(dim + 1)):
             coords_sorted[d, s] = coords[d, e]
 
 
@@ -226,29 +244,36 @@ class CellGrid:
     Models may keep their state in any arrangement of the agents (tflock's models keep it in the cell order of
     the previous step, so this build reads and writes nearly sequentially); ``ids`` names the agent stored at
     each element. After a build: ``order[s]`` is the element at sorted slot s, ``id_sorted[s]`` its agent id,
-    ``slot_of[agent]`` the agent's slot, and ``pos_sorted`` / ``coords_sorted`` are in slot order.
+    ``slot_of[agent]`` the agent's slot, and ``pos_sorted`` / ``coords_sorted`` (cell coordinates, then
+    replica) are in slot order. With ``replicas`` > 1 the n agents are that many independent systems of
+    n / replicas agents each (agent id = replica * n / replicas + local id) that never see each other.
     """
 
-    def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type) -> None:
+    def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type,
+                 replicas: int = 1) -> None:
+        if n % replicas:
+            raise ValueError(f"{n} agents do not split into {replicas} equal replicas")
         self.n = n
         self.real = real
-        self.geometry = grid_geometry(n, dim, boundary, box, radius)
+        self.replicas = replicas
+        self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas)
         g = self.geometry
         ftype = ti.f32 if real == np.float32 else ti.f64
-        self.coords = ti.ndarray(ti.i32, (dim, n))
+        self.coords = ti.ndarray(ti.i32, (dim + 1, n))
         self.bucket = ti.ndarray(ti.i32, n)
-        self.counts = ti.ndarray(ti.i32, g.n_buckets)
-        self.start = ti.ndarray(ti.i32, g.n_buckets + 1)
+        self.counts = ti.ndarray(ti.i32, g.total_buckets)
+        self.start = ti.ndarray(ti.i32, g.total_buckets + 1)
         self.order = ti.ndarray(ti.i32, n)
         self.slot_of = ti.ndarray(ti.i32, n)
         self.id_sorted = ti.ndarray(ti.i32, n)
         self.pos_sorted = ti.ndarray(ftype, (dim, n))
-        self.coords_sorted = ti.ndarray(ti.i32, (dim, n))
+        self.coords_sorted = ti.ndarray(ti.i32, (dim + 1, n))
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
         g = self.geometry
-        _build(pos, ids, self.n, g.cell_size, g.cells_per_side, g.n_buckets, g.boundary, g.dim,
+        _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
+               g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
                self.pos_sorted, self.coords_sorted, self.id_sorted)
 
@@ -268,7 +293,7 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.n
         i = selected_ids[m]
         s = slot_of[i]
         p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             for k in range(start[lo], start[hi]):

@@ -115,3 +115,14 @@ def randint_ti(h, bound):
 def bernoulli_ti(h, k):
     """Taichi twin of :func:`bernoulli_np`."""
     return ti.cast(h >> ti.u32(8), ti.i64) * k < (1 << 24)
+
+
+@ti.func
+def replica_key(seed, agent, per_replica):
+    """Key words (seed, agent) of agent id `agent` in a batch of replicas of `per_replica` agents each.
+
+    Replica r draws with seed + r and its local id, exactly what a lone run with seed + r draws, so a batch
+    reproduces its replicas run one by one (and one replica of n agents keeps the plain key).
+    """
+    r = agent // per_replica
+    return ti.cast(seed, ti.u32) + ti.cast(r, ti.u32), agent - r * per_replica

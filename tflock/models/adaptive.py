@@ -28,10 +28,10 @@ from tflock.engine import EngineInfo
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
-from tflock.neighbors import CellGrid, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.reference.adaptive import initial_draws
-from tflock.rng import Stream, uniform_ti
+from tflock.rng import Stream, replica_key, uniform_ti
 from tflock.space import OPEN, PERIODIC, boundary_code, displacement, wrap_periodic
 
 TWO_PI = 2 * math.pi
@@ -84,8 +84,9 @@ def _move(n: ti.i32, speed: float, alpha: float, tol: float, box: float, mode: t
 
 
 @ti.kernel
-def _align(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, box: float, noise: float, cos_eta: float,
-           with_noise: ti.template(), boundary: ti.template(), dim: ti.template(), nc: ti.i32, n_buckets: ti.i32,
+def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, box: float, noise: float,
+           cos_eta: float, with_noise: ti.template(), boundary: ti.template(), dim: ti.template(), nc: ti.i32,
+           n_buckets: ti.i32,
            start: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
            pos: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(), ids: ti.types.ndarray()):
@@ -98,7 +99,7 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, box: float, noise:
     for s in range(n):
         i = id_sorted[s]
         p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         acc = ti.Vector([0.0] * dim)
         count = 0.0
         for o in range(ti.static(span_count(boundary, dim))):
@@ -116,13 +117,14 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, box: float, noise:
         if norm > 0:
             new = m / norm
         if ti.static(with_noise):
-            u = uniform_ti(seed, t, i, Stream.NOISE)
+            key, local = replica_key(seed, i, per_replica)
+            u = uniform_ti(key, t, local, Stream.NOISE)
             if ti.static(dim == 2):  # eq. (12): turn by xi ~ U[-eta, eta]
                 xi = noise * (2.0 * u - 1.0)
                 cx, sx = ti.cos(xi), ti.sin(xi)
                 new = ti.Vector([cx * new[0] - sx * new[1], sx * new[0] + cx * new[1]])
             else:
-                new = cone_noise(new, u, uniform_ti(seed, t, i, Stream.NOISE_2), cos_eta)
+                new = cone_noise(new, u, uniform_ti(key, t, local, Stream.NOISE_2), cos_eta)
         for a in ti.static(range(dim)):
             pos[a, s] = p[a]
             dirs[a, s] = new[a]
@@ -132,15 +134,20 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, box: float, noise:
 
 
 @ti.kernel
-def _order_sums(n: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: ti.template(),
+def _order_sums(n: ti.i32, length: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: ti.template(),
+                by_agent: ti.template(), slot_of: ti.types.ndarray(), order: ti.types.ndarray(),
                 dirs: ti.types.ndarray(), phi: ti.types.ndarray(), partial: ti.types.ndarray()):
-    """Per block of agents: sum d_i, sum c_i d_i, sum c_i, sum c_i |d_i| (c_i = c_alpha(phi_i))."""
-    for blk in range(partial.shape[0]):
+    """Per segment of `length` elements (by_agent: agents, element ``order[slot_of[agent]]``, so a segment can be
+    one replica of a batch): sum d_i, sum c_i d_i, sum c_i, sum c_i |d_i| (c_i = c_alpha(phi_i))."""
+    for seg in range(partial.shape[0]):
         sd = ti.Vector([0.0] * dim)
         sv = ti.Vector([0.0] * dim)
         sc = 0.0
         ss = 0.0
-        for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+        for k in range(seg * length, ti.min(n, (seg + 1) * length)):
+            e = k
+            if ti.static(by_agent):
+                e = order[slot_of[k]]
             d = load_vec(dirs, e, dim)
             c = speed_coefficient(phi[e], alpha, tol, mode)
             sd += d
@@ -148,10 +155,10 @@ def _order_sums(n: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: t
             sc += c
             ss += c * d.norm()
         for a in ti.static(range(dim)):
-            partial[blk, a] = sd[a]
-            partial[blk, dim + a] = sv[a]
-        partial[blk, 2 * dim] = sc
-        partial[blk, 2 * dim + 1] = ss
+            partial[seg, a] = sd[a]
+            partial[seg, dim + a] = sv[a]
+        partial[seg, 2 * dim] = sc
+        partial[seg, 2 * dim + 1] = ss
 
 
 @ti.kernel
@@ -176,13 +183,24 @@ class Adaptive(GridModel):
     element); :meth:`state` returns ``x`` (n, d), ``d`` (n, d) and ``phi`` (n,) in agent order. The transient
     time tau (first step with mean speed >= 0.98 v0) is tracked at every step, from the initial state or the
     last :meth:`set_state`, and reported (NaN before) once reached.
+
+    ``replicas`` > 1 runs that many independent realisations in the same kernel launches: replica r is the run
+    with seed ``seed + r`` (bit-identical to running it alone), agent ids are ``r * n + i``, the state arrays
+    hold all ``replicas * n`` agents (replica-major in :meth:`state`) and :meth:`replica_metrics` gives the
+    metrics of each.
     """
 
     name = "adaptive"
 
-    def __init__(self, params: AdaptiveParams, seed: int, engine: EngineInfo) -> None:
+    @classmethod
+    def can_batch(cls, params: AdaptiveParams) -> bool:
+        return True
+
+    def __init__(self, params: AdaptiveParams, seed: int, engine: EngineInfo, replicas: int = 1) -> None:
         super().__init__(params, seed, engine)
-        n, dim, real = params.n, params.dim, engine.real
+        self.replicas = replicas
+        n, dim, real = params.n * replicas, params.dim, engine.real
+        self.n_total = n
         self.metric_descriptions = {
             "phi_theta": "Phi_theta |mean unit direction| (eq. 3)",
             "phi_v": "Phi_v |sum of velocities| / (N v0) (eq. 2)",
@@ -202,7 +220,8 @@ class Adaptive(GridModel):
         self.ids = ti.ndarray(ti.i32, n)
         self.payload = ti.ndarray(ftype, (dim, n))  # d_j(k) in cell order
         self.partial = ti.ndarray(ti.f64, (n_blocks(n), 2 * dim + 2))
-        self.grid = CellGrid(n, dim, params.boundary, params.box, params.radius, real)
+        self._replica_partial = ti.ndarray(ti.f64, (replicas, 2 * dim + 2))
+        self.grid = CellGrid(n, dim, params.boundary, params.box, params.radius, real, replicas)
         self.graph = NeighbourGraph(self.grid)
         self._boundary = boundary_code(params.boundary)
         self._mode = INFINITE if params.alpha == "inf" else FINITE
@@ -210,8 +229,9 @@ class Adaptive(GridModel):
         self._tol = agreement_tolerance(np.dtype(real).itemsize)
         self._grid_step = -1  # step whose positions the grid holds
         self.tau = -1  # first step with mean speed >= 0.98 v0; -1 until reached
-        x, raw = initial_draws(params, seed)
-        self._upload(x, raw, np.zeros(n))
+        self._replica_tau = np.full(replicas, -1)  # the same for each replica of a batch
+        draws = [initial_draws(params, seed + r) for r in range(replicas)]
+        self._upload(np.concatenate([x for x, _ in draws]), np.concatenate([d for _, d in draws]), np.zeros(n))
         self._ensure_grid()
         self._align(with_noise=False)  # phi_i(0), d_i(0) from eq. (4)
         self._track_tau()
@@ -222,7 +242,7 @@ class Adaptive(GridModel):
         self.pos.from_numpy(np.ascontiguousarray(np.asarray(x).T, dtype=real))
         self.dirs.from_numpy(np.ascontiguousarray(np.asarray(d).T, dtype=real))
         self.phi.from_numpy(np.ascontiguousarray(phi, dtype=real))
-        self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
+        self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
         self._grid_step = -1
 
     def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
@@ -230,11 +250,12 @@ class Adaptive(GridModel):
         self._upload(state["x"], state["d"], state["phi"])
         self.step_index = step
         self.tau = -1
+        self._replica_tau[:] = -1
         self._track_tau()
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
-        n, dim, real = self.params.n, self.params.dim, self.engine.real
+        n, dim, real = self.n_total, self.params.dim, self.engine.real
         x = np.empty((n, dim), dtype=real)
         d = np.empty((n, dim), dtype=real)
         phi = np.empty(n, dtype=real)
@@ -247,15 +268,15 @@ class Adaptive(GridModel):
 
     def _align(self, with_noise: bool) -> None:
         p, g = self.params, self.grid.geometry
-        _align(self.step_index, self.seed, p.n, p.radius, p.box, p.noise, math.cos(p.noise), with_noise,
-               self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order,
+        _align(self.step_index, self.seed, self.n_total, p.n, p.radius, p.box, p.noise, math.cos(p.noise),
+               with_noise, self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order,
                self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
                self.dirs, self.phi, self.ids)
 
     def advance(self, steps: int) -> None:
         p = self.params
         for _ in range(steps):
-            _move(p.n, p.speed, self._alpha, self._tol, p.box, self._mode, self._boundary, p.dim, self.pos,
+            _move(self.n_total, p.speed, self._alpha, self._tol, p.box, self._mode, self._boundary, p.dim, self.pos,
                   self.dirs, self.phi)
             self.grid.build(self.pos, self.ids)  # Gamma_i(k+1) from X(k+1)
             self._align(with_noise=p.noise > 0)
@@ -267,15 +288,44 @@ class Adaptive(GridModel):
     def _sums(self) -> tuple[np.ndarray, np.ndarray, float, float]:
         """Mean d, mean c d, mean c and mean c |d| over all agents (deterministic block sums)."""
         p = self.params
-        _order_sums(p.n, self._alpha, self._tol, self._mode, p.dim, self.dirs, self.phi, self.partial)
+        _order_sums(p.n, BLOCK, self._alpha, self._tol, self._mode, p.dim, False, self.grid.slot_of,
+                    self.grid.order, self.dirs, self.phi, self.partial)
         total = self.partial.to_numpy().sum(axis=0) / p.n
         return total[: p.dim], total[p.dim: 2 * p.dim], float(total[-2]), float(total[-1])
 
     def _track_tau(self) -> None:
-        if self.tau < 0 and self._sums()[3] >= TRANSIENT_SPEED:
+        if self.replicas > 1:
+            reached = (self._replica_tau < 0) & (self._replica_sums()["mean_speed"] >= TRANSIENT_SPEED)
+            self._replica_tau[reached] = self.step_index
+        elif self.tau < 0 and self._sums()[3] >= TRANSIENT_SPEED:
             self.tau = self.step_index
 
+    def _replica_sums(self) -> dict[str, np.ndarray]:
+        """Phi_theta, Phi_v, C_alpha and mean speed of each replica of a batch."""
+        p = self.params
+        self._ensure_grid()
+        _order_sums(self.n_total, p.n, self._alpha, self._tol, self._mode, p.dim, True, self.grid.slot_of,
+                    self.grid.order, self.dirs, self.phi, self._replica_partial)
+        means = self._replica_partial.to_numpy() / p.n
+        return {"phi_theta": np.linalg.norm(means[:, : p.dim], axis=1),
+                "phi_v": np.linalg.norm(means[:, p.dim: 2 * p.dim], axis=1),
+                "c_alpha": means[:, -2], "mean_speed": means[:, -1]}
+
+    def replica_metrics(self) -> dict[str, np.ndarray]:
+        """:meth:`metrics` of each replica of a batch: one array of length ``replicas`` per metric."""
+        p = self.params
+        self._ensure_grid()
+        out = self._replica_sums()
+        out.update(self.graph.compute_replicas(p.radius, p.box))
+        tau = self.tau if self.replicas == 1 else self._replica_tau
+        out["tau"] = np.where(np.asarray(tau) < 0, np.nan, tau).astype(np.float64).reshape(self.replicas)
+        converged = (out["largest_cluster"] == 1.0) & (out["phi_theta"] >= 1 - CONVERGED_TOL)
+        out["converged"] = converged.astype(np.float64)
+        return {name: out[name] for name in self.metric_descriptions}
+
     def metrics(self) -> dict[str, float]:
+        if self.replicas > 1:
+            raise RuntimeError("a batch of replicas has no single set of metrics: use replica_metrics()")
         p = self.params
         self._ensure_grid()
         mean_d, mean_v, c_alpha, speed = self._sums()

@@ -23,6 +23,12 @@ class Model(ABC):
     #: metric name -> one-line description, in the order the metrics table uses
     metric_descriptions: Mapping[str, str]
 
+    @classmethod
+    def can_batch(cls, params) -> bool:
+        """Whether replicas of this model with these parameters run batched (``replicas=`` in the constructor,
+        :meth:`replica_metrics`); see :mod:`tflock.ensemble`."""
+        return False
+
     def __init__(self, params, seed: int, engine: EngineInfo) -> None:
         self.params = params
         self.seed = seed

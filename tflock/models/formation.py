@@ -62,7 +62,7 @@ from tflock.models.formation_params import (
     VA_COHESION,
     FormationParams,
 )
-from tflock.neighbors import CellGrid, load_ivec, load_vec, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_cell, load_vec, span_count, stencil_span
 from tflock.record import Frame, Marker, WorldSpec
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
@@ -114,7 +114,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
         i = id_sorted[s]
         e = order[s]
         p = load_vec(pos_sorted, s, 2)
-        cell = load_ivec(coords_sorted, s, 2)
+        cell = load_cell(coords_sorted, s, 2)
         th = f_old[THETA, e]
         a_cos = 0.0
         a_sin = 0.0

@@ -34,7 +34,7 @@ from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
-from tflock.neighbors import CellGrid, load_ivec, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.space import OPEN
 
@@ -80,7 +80,7 @@ def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.templ
     for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
         p = load_vec(pos_sorted, s, dim)
         v = load_vec(vel_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         u = ti.Vector([0.0] * dim)
         for o in range(ti.static(span_count(OPEN, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
@@ -126,7 +126,7 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
     the distance to its nearest agent, capped at R."""
     for s in range(n):
         p = load_vec(pos_sorted, s, dim)
-        c = load_ivec(coords_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
         count = 0
         pot = 0.0
         near = r2cut

@@ -32,18 +32,27 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
-from tflock.metrics import EXACT_PAIRS_MAX, SAMPLED_PAIRS, NeighbourGraph, heading_order, mean, pairwise_errors
+from tflock.metrics import (
+    EXACT_PAIRS_MAX,
+    SAMPLED_PAIRS,
+    NeighbourGraph,
+    heading_order,
+    mean,
+    pairwise_errors,
+    replica_pairwise_errors,
+)
 from tflock.models.base import GridModel
 from tflock.neighbors import (
     CellGrid,
-    load_ivec,
+    load_cell,
     load_vec,
     same_cell,
     span_count,
     stencil_span,
 )
 from tflock.record import Frame, WorldSpec, heading_colors
-from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, uniform_np, uniform_ti
+from tflock.reference import wrap_pi as wrap_pi_np
+from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, replica_key, uniform_np, uniform_ti
 from tflock.space import (
     OPEN,
     PERIODIC,
@@ -73,8 +82,8 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
 
 
 @ti.kernel
-def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise: float, box: float,
-          max_turn: float, inv_g: float, bound: ti.i32,
+def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, speed: float, noise: float,
+          box: float, max_turn: float, inv_g: float, bound: ti.i32,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
           nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
           id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
@@ -93,13 +102,14 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
     for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
         i = id_sorted[s]
         p = load_vec(pos_sorted, s, 2)
-        c = load_ivec(coords_sorted, s, 2)
+        c = load_cell(coords_sorted, s, 2)
         th_i = payload[2, s]
+        key, local = replica_key(seed, i, per_replica)
         update = True
         if ti.static(asynchronous):  # 003 Table 1: update with probability 1 / (B - Omega_i + 1)
-            update = bernoulli_ti(hash_ti(seed, t, i, Stream.UPDATE), bound - omega[i] + 1)
+            update = bernoulli_ti(hash_ti(key, t, local, Stream.UPDATE), bound - omega[i] + 1)
         if ti.static(leader):
-            if i == 0:
+            if local == 0:
                 update = False  # the leader keeps theta0 (Jadbabaie eq. 22)
         new = th_i
         if update:
@@ -126,7 +136,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
                         d_now = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
                         if d_now.norm_sqr() <= reach2 and k != s and same_cell(coords_sorted, k, cell, boundary, 2):
                             j = id_sorted[k]
-                            slot = (t - randint_ti(pair_hash_ti(seed, t, i, j, Stream.DELAY), bound) + ring) % ring
+                            delay = randint_ti(pair_hash_ti(key, t, local, j - (i - local), Stream.DELAY), bound)
+                            slot = (t - delay + ring) % ring
                             d = displacement(p, ti.Vector([hist_pos[slot, 0, j], hist_pos[slot, 1, j]]), box,
                                              boundary)
                             if d.norm_sqr() <= r2:
@@ -148,7 +159,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, radius: float, speed: float, noise
                 phi = acc_a / (1.0 + count)
             else:
                 phi = inv_g * (acc_a - count * th_i)
-            xi = noise * (uniform_ti(seed, t, i, Stream.NOISE) - 0.5)
+            xi = noise * (uniform_ti(key, t, local, Stream.NOISE) - 0.5)
             new = wrap_two_pi(th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi)
         q = p + speed * ti.Vector([ti.cos(new), ti.sin(new)])
         if ti.static(boundary == PERIODIC):
@@ -203,14 +214,29 @@ class Vicsek(GridModel):
     The state arrays hold the agents in the cell order of the last step (``ids`` names the agent at each
     element), so the grid build and the step read and write memory nearly sequentially; :meth:`state` returns
     them in agent order.
+
+    ``replicas`` > 1 runs that many independent realisations in the same kernel launches: replica r is the run
+    with seed ``seed + r`` (bit-identical to running it alone; its leader is its agent 0), agent ids are
+    ``r * n + i``, the state arrays hold all ``replicas * n`` agents (replica-major in :meth:`state`) and
+    :meth:`replica_metrics` gives the metrics of each. Batches are for systems of at most ``EXACT_PAIRS_MAX``
+    agents, whose e_d and e_theta are exact.
     """
 
     name = "vicsek"
 
-    def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo, force_async: bool = False) -> None:
+    @classmethod
+    def can_batch(cls, params: VicsekParams) -> bool:
+        return params.n <= EXACT_PAIRS_MAX
+
+    def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo, force_async: bool = False,
+                 replicas: int = 1) -> None:
         """`force_async` runs the asynchronous kernel even for B = 1 (it must reproduce the synchronous one)."""
         super().__init__(params, seed, engine)
-        n, real = params.n, engine.real
+        if replicas > 1 and not self.can_batch(params):
+            raise ValueError(f"batches of replicas need n <= {EXACT_PAIRS_MAX}")
+        self.replicas = replicas
+        n, real = params.n * replicas, engine.real
+        self.n_total = n
         exact = n <= EXACT_PAIRS_MAX
         estimate = "" if exact else f" (estimate from {SAMPLED_PAIRS} sampled pairs)"
         self._pair_names = ("e_d", "e_theta") if exact else ("e_d_est", "e_theta_est")
@@ -242,12 +268,13 @@ class Vicsek(GridModel):
         self.hist_pos = ti.ndarray(ftype, (ring, 2, m))
         self.hist_theta = ti.ndarray(ftype, (ring, m))
         reach = params.radius + (bound - 1) * params.speed if self.asynchronous else params.radius
-        self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real)
+        self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real, replicas)
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
-        self.set_state(initial_state(params, seed), 0)
+        draws = [initial_state(params, seed + r) for r in range(replicas)]
+        self.set_state({k: np.concatenate([d[k] for d in draws]) for k in draws[0]}, 0)
 
     def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
         """Replace the state. With asynchrony, `state` may carry the ring of past states (``history_x``,
@@ -258,7 +285,7 @@ class Vicsek(GridModel):
         theta = np.ascontiguousarray(state["theta"], dtype=real)
         self.pos.from_numpy(x)
         self.theta.from_numpy(theta)
-        self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
+        self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
         self.turn.fill(0)
         self.updated.fill(0)
         if self.asynchronous:
@@ -278,8 +305,8 @@ class Vicsek(GridModel):
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
-        x = np.empty((self.params.n, 2), dtype=self.engine.real)
-        theta = np.empty(self.params.n, dtype=self.engine.real)
+        x = np.empty((self.n_total, 2), dtype=self.engine.real)
+        theta = np.empty(self.n_total, dtype=self.engine.real)
         x[ids] = self.pos.to_numpy().T
         theta[ids] = self.theta.to_numpy()
         if not self.asynchronous:
@@ -297,7 +324,7 @@ class Vicsek(GridModel):
         inv_g = 1.0 / p.g if p.rule == "laplacian" else 0.0
         for _ in range(steps):
             self._ensure_grid()
-            _step(self.step_index, self.seed, p.n, p.radius, p.speed, p.noise, p.box,
+            _step(self.step_index, self.seed, self.n_total, p.n, p.radius, p.speed, p.noise, p.box,
                   math.radians(p.max_turn_deg), inv_g, p.async_bound,
                   RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
                   g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order, self.grid.id_sorted,
@@ -306,6 +333,8 @@ class Vicsek(GridModel):
             self.step_index += 1
 
     def metrics(self) -> dict[str, float]:
+        if self.replicas > 1:
+            raise RuntimeError("a batch of replicas has no single set of metrics: use replica_metrics()")
         p = self.params
         self._ensure_grid()
         leader_heading = float(self._rows(self._leader_id, 1)[0, 2]) if p.leader.enabled else 0.0
@@ -318,6 +347,26 @@ class Vicsek(GridModel):
         out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
+        return {name: out[name] for name in self.metric_descriptions}
+
+    def replica_metrics(self) -> dict[str, np.ndarray]:
+        """:meth:`metrics` of each replica of a batch: one array of length ``replicas`` per metric."""
+        p = self.params
+        self._ensure_grid()
+        replicas, n = self.replicas, p.n
+        theta = np.empty(self.n_total)
+        theta[self.ids.to_numpy()] = self.theta.to_numpy()
+        theta = theta.reshape(replicas, n)
+        c, s = np.cos(theta).sum(axis=1), np.sin(theta).sum(axis=1)
+        out = {"polarization": np.hypot(c, s) / n, "mean_heading": np.arctan2(s, c) % TWO_PI}
+        out.update(self.graph.compute_replicas(p.radius, p.box))
+        pairs = replica_pairwise_errors(self.grid, self.pos, self.theta, p.box, boundary_code(p.boundary), 2)
+        out.update(zip(self._pair_names, pairs, strict=True))
+        out["de_theta"] = self.turn.to_numpy().astype(np.float64).reshape(replicas, n).mean(axis=1)
+        out["updated"] = self.updated.to_numpy().reshape(replicas, n).mean(axis=1)
+        if p.leader.enabled:
+            gap = np.abs(wrap_pi_np(theta[:, 1:] - theta[:, :1])).sum(axis=1)
+            out["leader_error"] = gap / (n - 1) if n > 1 else np.zeros(replicas)
         return {name: out[name] for name in self.metric_descriptions}
 
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
