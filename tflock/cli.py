@@ -318,6 +318,118 @@ def bench(
         out.print(f"wrote {path}", highlight=False)
 
 
+@app.command()
+def sweep(
+    file: Annotated[Path, typer.Argument(help="Sweep file (TOML): model or base, fixed keys, grid, points.")],
+    out_dir: Annotated[Path | None, typer.Option("--out", "-o", help="Folder (default results/sweeps/NAME).")] = None,
+    workers: Annotated[int | None, typer.Option(help="Run the points on N local processes (Dask).")] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler to run on: tcp://HOST:PORT.")] = None,
+    replicas: Annotated[int | None, typer.Option(help="Replicas per point (replaces the file's).")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help="Fix a key for every point.")] = None,
+) -> None:
+    """Run a parameter sweep: every point of the grid x replicas, one table (Parquet and CSV); resumable."""
+    from tflock.sweep import SweepError, default_out, load_sweep, run_sweep
+
+    t_start = time.perf_counter()
+    if workers is not None and workers < 1:
+        fail(f"--workers: must be >= 1, got {workers}")
+    if workers is not None and scheduler is not None:
+        fail("--workers and --scheduler: give one of them, not both")
+    try:
+        plan = load_sweep(file, replicas=replicas, overrides=set_)
+    except ConfigError as e:
+        fail(str(e))
+    folder = out_dir or default_out(plan.name)
+    where = f"Dask at {scheduler}" if scheduler else f"{workers} local processes" if workers else "in-process"
+    done = 0
+    try:
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err, disable=not err.is_terminal) as progress:
+            task = progress.add_task(f"sweep {plan.name} ({where})", total=len(plan.points))
+
+            def tick(finished: int, total: int) -> None:
+                nonlocal done
+                done = finished
+                progress.update(task, completed=finished)
+
+            table = run_sweep(plan, out=folder, workers=workers or 0, scheduler=scheduler, progress=tick)
+    except (ConfigError, SweepError) as e:
+        fail(str(e))
+    except KeyboardInterrupt:
+        err.print(f"interrupted: {done} of {len(plan.points)} points saved in {folder / 'points'}; "
+                  "run the same command again to resume", highlight=False, soft_wrap=True)
+        raise typer.Exit(130) from None
+    info = table.attrs["sweep"]
+    summary = Table(title=f"sweep {plan.name}: {plan.model}", show_header=False)
+    summary.add_column(style="bold")
+    summary.add_column()
+    summary.add_row("points", f"{info['points']} ({info['computed']} computed, {info['loaded']} from earlier runs)")
+    summary.add_row("replicas", f"{info['replicas']} per point (seeds {plan.seed} .. {plan.seed + plan.replicas - 1})")
+    summary.add_row("rows", f"{len(table)} x {len(table.columns)} columns")
+    summary.add_row("ran", where)
+    summary.add_row("wall time", f"{time.perf_counter() - t_start:.1f} s")
+    for path in [*info["files"], folder / "points"]:
+        summary.add_row("wrote", str(path))
+    out.print(summary)
+
+
+@app.command()
+def reproduce(
+    name: Annotated[str | None, typer.Argument(help="Experiment (omit, or --list, to list them).")] = None,
+    quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (minutes at most; what CI runs).")] = False,
+    out_dir: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder [results/NAME].")] = None,
+    workers: Annotated[int | None, typer.Option(help="Run sweep points on N local processes (Dask).")] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler to run on: tcp://HOST:PORT.")] = None,
+    list_: Annotated[bool, typer.Option("--list", help="List the experiments.")] = False,
+) -> None:
+    """Reproduce a paper's published results: figures (PNG), table (CSV) and comparison.md; resumable."""
+    from tflock.reproduce import EXPERIMENTS, experiment
+    from tflock.reproduce.run import reproduce as run_reproduction
+    from tflock.sweep import SweepError
+
+    if list_ or name is None:
+        listing = Table(title="tflock reproduce NAME", show_header=True)
+        listing.add_column("name", style="bold")
+        listing.add_column("experiment")
+        listing.add_column("source")
+        for key in sorted(EXPERIMENTS):
+            exp = experiment(key)
+            listing.add_row(key, exp.title, exp.source)
+        out.print(listing)
+        return
+    if workers is not None and workers < 1:
+        fail(f"--workers: must be >= 1, got {workers}")
+    if workers is not None and scheduler is not None:
+        fail("--workers and --scheduler: give one of them, not both")
+    try:
+        experiment(name)
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err, disable=not err.is_terminal) as progress:
+            tasks: dict[str, int] = {}
+
+            def tick(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = progress.add_task(f"{name}: {stage}", total=total)
+                progress.update(tasks[stage], completed=done, total=total)
+
+            result = run_reproduction(name, quick=quick, out=out_dir, workers=workers or 0, scheduler=scheduler,
+                                      progress=tick)
+    except (ConfigError, SweepError) as e:
+        fail(str(e))
+    except KeyboardInterrupt:
+        err.print("interrupted: finished sweep points and runs are kept; run the same command again to resume",
+                  highlight=False, soft_wrap=True)
+        raise typer.Exit(130) from None
+    summary = Table(title=f"reproduce {name}{' --quick' if quick else ''}", show_header=False)
+    summary.add_column(style="bold")
+    summary.add_column()
+    summary.add_row("runs", f"{result.computed} computed, {result.loaded} from earlier runs")
+    summary.add_row("wall time", f"{result.wall_s:.1f} s")
+    for path in result.files:
+        summary.add_row("wrote", str(path))
+    out.print(summary)
+
+
 def main() -> None:
     """Console-script entry point."""
     app()
