@@ -1,7 +1,9 @@
 """The `tflock` command line: a thin layer over :class:`tflock.Simulation` and :mod:`tflock.record`.
 
-Every user error (bad config, missing file, unwritable output, unavailable arch) is one line on stderr and exit
-code 2; Ctrl-C or SIGTERM stops a run cleanly and leaves a complete recording up to the last logged frame.
+Every user error (bad config, missing file, unwritable output, unavailable arch, a value click cannot parse) is one
+line on stderr and exit code 2, and so is a numerical fault (a non-finite state: the recording ends at the last
+good frame and the last good state is saved); Ctrl-C or SIGTERM stops a run cleanly and leaves a complete
+recording up to the last logged frame.
 """
 
 from __future__ import annotations
@@ -9,17 +11,46 @@ from __future__ import annotations
 import signal
 import sys
 import time
+from importlib import import_module
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from typer.core import TyperGroup
 
 from tflock.config import MODEL_DESCRIPTIONS, ConfigError, default_config_toml, load_config, tomllib
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+#: click's exceptions, as the installed typer raises them (recent typers carry their own copy of click)
+_click_errors = import_module(typer.BadParameter.__module__)
+
+
+class _OneLineUsageErrors(TyperGroup):
+    """Click's usage errors (an unknown option or command, a value of the wrong type, a missing argument) as one
+    line and exit code 2, like every other error, instead of a usage text and an error box."""
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            code = super().main(*args, standalone_mode=False, **kwargs)
+        except getattr(_click_errors, "NoArgsIsHelpError", ()) as e:  # the help text is printed already
+            sys.exit(e.exit_code)
+        except _click_errors.ClickException as e:
+            ctx = getattr(e, "ctx", None)
+            hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+            _error_line(e.format_message() + hint)
+            sys.exit(e.exit_code)
+        except typer.Abort:
+            _error_line("aborted")
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, cls=_OneLineUsageErrors,
                   help="Large-N flocking simulation on Taichi, recorded to Rerun.")
 config_app = typer.Typer(no_args_is_help=True, help="Inspect model configs.")
 app.add_typer(config_app, name="config")
@@ -27,9 +58,14 @@ out = Console()
 err = Console(stderr=True)
 
 
+def _error_line(message: str) -> None:
+    """``error: <message>`` on one line, whatever the message holds (newlines, markup brackets, emoji codes)."""
+    err.print(f"[bold red]error:[/] {escape(' '.join(message.split()))}", highlight=False, soft_wrap=True, emoji=False)
+
+
 def fail(message: str) -> NoReturn:
     """One-line error, exit code 2."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _error_line(message)
     raise typer.Exit(2)
 
 
@@ -81,7 +117,7 @@ def sim(
     signal.signal(signal.SIGTERM, stop.handler)  # SLURM, timeout, docker stop: finish the file
     signal.signal(signal.SIGINT, stop.handler)  # also when started in the background
     from tflock.engine import EngineError
-    from tflock.simulation import Simulation, default_recording_path
+    from tflock.simulation import NumericalFaultError, Simulation, default_recording_path
 
     if checkpoint_every and checkpoint is None:
         base = out_path or (Path(cfg.log.out) if cfg.log.out else default_recording_path(cfg.model))
@@ -92,7 +128,7 @@ def sim(
                                 checkpoint_every=checkpoint_every)
     except OSError as e:
         fail(e.strerror or str(e))
-    except (EngineError, RuntimeError) as e:
+    except (ConfigError, EngineError, RuntimeError) as e:
         fail(str(e))
     except KeyboardInterrupt:
         err.print("interrupted during start-up", highlight=False)
@@ -131,6 +167,8 @@ def sim(
                 simulation.run(tick)
     except (_StopSignalError, KeyboardInterrupt):
         interrupted = True
+    except NumericalFaultError as e:  # the recording is closed and the last good state saved
+        fail(str(e))
     finally:
         simulation.close()
     t_end = time.perf_counter()
@@ -248,11 +286,27 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
 def _int_list(text: str, what: str) -> list[int]:
     try:
         values = [int(float(v)) for v in text.split(",") if v.strip()]
-    except ValueError:
+    except (ValueError, OverflowError):  # not a number; nan or inf
         fail(f"--{what}: expected comma-separated numbers such as 1e3,1e4, got {text!r}")
     if not values or min(values) <= 0:
         fail(f"--{what}: every value must be > 0, got {text!r}")
     return values
+
+
+def _refuse_bench_cases(todo: list, prefix: Path) -> None:
+    """Before any case runs: every size must fit in memory and the results must be writable."""
+    from tflock.bench import case_config
+    from tflock.preflight import check_memory, check_writable
+
+    for case in todo:
+        try:
+            check_memory(load_config(case_config(case)))
+        except ConfigError as e:
+            fail(f"--sizes: {case.model} at n = {case.n:,}: {e}")
+    try:
+        check_writable(prefix.with_suffix(".json"), "benchmark results")
+    except OSError as e:
+        fail(f"--out: {e.strerror or e}")
 
 
 @app.command()
@@ -288,6 +342,7 @@ def bench(
         todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
                       repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers)
     prefix = prefix or Path("benchmarks") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
+    _refuse_bench_cases(todo, prefix)
     results = []
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, disable=not err.is_terminal) as progress:

@@ -312,7 +312,7 @@ def load_config(
     named = raw.get("model")
     if model is not None and named is not None and named != model:
         raise ConfigError(f"model: the config says {_value_text(named)} but model {model!r} was requested")
-    raw.setdefault("model", model or DEFAULT_MODEL)
+    raw.setdefault("model", DEFAULT_MODEL if model is None else model)
 
     try:
         return Config.model_validate(raw)
@@ -338,16 +338,20 @@ def parse_override(expr: str) -> tuple[str, Any]:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
-    """Read a TOML file; a missing file, unreadable file or bad TOML is a ConfigError."""
+    """Read a TOML file; a missing, unreadable or empty file (no keys: most likely a truncated one) or bad TOML is
+    a ConfigError."""
     try:
         with path.open("rb") as file:
-            return tomllib.load(file)
+            data = tomllib.load(file)
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
     except OSError as error:
         raise ConfigError(f"{path}: cannot read: {error.strerror or error}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(_one_line(f"{path}: invalid TOML: {error}")) from None
+    if not data:
+        raise ConfigError(f"{path}: the config file is empty; it needs at least a key such as model = \"vicsek\"")
+    return data
 
 
 def _plain_dict(mapping: Mapping[str, Any]) -> dict[str, Any]:
@@ -412,6 +416,8 @@ def _one_error_text(error: ErrorDetails, model: Any) -> str:
         allowed = "expected a string"
     else:
         allowed = error["msg"][:1].lower() + error["msg"][1:]
+        if kind == "config_type" and field is not None and _bounds(field):  # "expected a finite number > 0"
+            allowed += " " + _range_text(field).removeprefix("must be ")
     return f"{key}: {allowed}, got {_value_text(got)}"
 
 
@@ -431,14 +437,19 @@ def _schema_at(loc: tuple[str, ...], model: Any) -> type[BaseModel] | None:
     return schema
 
 
-def _range_text(field: FieldInfo) -> str:
-    """``must be > 0``, ``must be between 0 and 6.283 (2 pi)``, ``must be > 0 and <= 360`` from a field."""
+def _bounds(field: FieldInfo) -> dict[str, Any]:
+    """The field's numeric bounds, by name (gt, ge, lt, le)."""
     bounds: dict[str, Any] = {}
     for constraint in field.metadata:
         for name in ("gt", "ge", "lt", "le"):
             if getattr(constraint, name, None) is not None:
                 bounds[name] = getattr(constraint, name)
-    return _range_text_from(bounds)
+    return bounds
+
+
+def _range_text(field: FieldInfo) -> str:
+    """``must be > 0``, ``must be between 0 and 6.283 (2 pi)``, ``must be > 0 and <= 360`` from a field."""
+    return _range_text_from(_bounds(field))
 
 
 def _range_text_from(bounds: Mapping[str, Any]) -> str:

@@ -1,7 +1,9 @@
 """The run loop: a model stepped through its config, with metrics and frames at their cadences.
 
 Metrics are computed at step 0 and every ``log.metrics_every`` steps (and at the last step), frames every
-``log.every`` steps; both go to the recorder when one is attached. A :class:`Simulation` is also the Python API:
+``log.every`` steps; both go to the recorder when one is attached. Before anything is kept or written for a step
+(metrics, a frame, a checkpoint), the non-finite guard checks the state: a nan or infinite position, heading or
+velocity stops the run with :class:`NumericalFaultError` (see there). A :class:`Simulation` is also the Python API:
 
     sim = Simulation("configs/vicsek.toml", params={"n": 5000}, steps=200)
     sim.run()
@@ -11,6 +13,7 @@ Metrics are computed at step 0 and every ``log.metrics_every`` steps (and at the
 from __future__ import annotations
 
 import os
+import time
 import uuid
 import zipfile
 from collections.abc import Callable, Mapping
@@ -31,7 +34,27 @@ from tflock.config import (
 )
 from tflock.engine import EngineInfo, init_engine
 from tflock.models import model_class
+from tflock.preflight import check_memory, check_writable
 from tflock.rng import Stream, hash_np
+
+#: the guard keeps a host copy of a good state when the time since the last copy is this many times what the copy
+#: took: copying costs about 0.5 % of the run, and a replay after a fault covers only the steps since the copy
+GOOD_COPY_RATIO = 200
+
+
+class NumericalFaultError(RuntimeError):
+    """A non-finite position, heading or velocity stopped the run (the message is one line).
+
+    The run is replayed from the last kept good state, checking every step, to find the first bad ``step`` and
+    the smallest bad ``agent`` id; the simulation is left at the last good state (step - 1), whose checkpoint was
+    written to ``checkpoint`` (None if it could not be written), and its recording is closed: nothing is logged
+    for steps after the last one that passed the guard.
+    """
+
+    def __init__(self, message: str, *, model: str, step: int, agent: int, quantity: str,
+                 checkpoint: Path | None) -> None:
+        super().__init__(message)
+        self.model, self.step, self.agent, self.quantity, self.checkpoint = model, step, agent, quantity, checkpoint
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
@@ -58,14 +81,17 @@ def read_checkpoint(path: str | Path, *, arrays: bool = True) -> dict[str, Any]:
     ``arrays=False`` only its config and recording id, without reading the state arrays."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"--resume: checkpoint not found: {path}")
+        raise ConfigError(f"--resume: checkpoint not found: {path}" if not path.exists() else
+                          f"--resume: {path} is not a checkpoint file")
     try:
         with np.load(path, allow_pickle=False) as data:
             if int(data["format"]) != CHECKPOINT_FORMAT or "config_toml" not in data.files:
                 raise KeyError("format")
             keys = data.files if arrays else ["config_toml", "recording_id", "step"]
-            return {k: data[k] for k in keys}
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+            out = {k: data[k] for k in keys}
+        tomllib.loads(str(out["config_toml"]))
+        return out
+    except (OSError, EOFError, TypeError, ValueError, KeyError, zipfile.BadZipFile, tomllib.TOMLDecodeError):
         raise ConfigError(f"--resume: {path} is not a tflock checkpoint (format {CHECKPOINT_FORMAT})") from None
 
 
@@ -80,8 +106,11 @@ class Simulation:
     overrides are nested like the TOML (``params={"noise": 0.3}``, ``steps=100``) or dotted strings in
     ``overrides`` (``["params.noise=0.3"]``, the CLI's ``--set``). ``record`` is False, True (a file under
     ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer. ``checkpoint`` /
-    ``checkpoint_every``: write :meth:`save_checkpoint` there every k steps; ``resume``: continue from such a file
-    (bit-identical to the uninterrupted run; a recording goes to a new file with the same recording id).
+    ``checkpoint_every``: write :meth:`save_checkpoint` there every k steps (``checkpoint`` also receives the last
+    good state after a :class:`NumericalFaultError`); ``resume``: continue from such a file (bit-identical to the
+    uninterrupted run; a recording goes to a new file with the same recording id). A config that needs more memory
+    than the machine has is a :class:`ConfigError`, and an output path that cannot be written an OSError, both
+    raised before anything is allocated or written.
     """
 
     def __init__(self, config: str | Path | Mapping[str, Any] | Config | None = None, *,
@@ -106,6 +135,15 @@ class Simulation:
             _flatten("", fields, merged)
             config = load_config(config, model=model, overrides=merged)
         self.config: Config = config
+        record_path = None if not record else Path(record) if not isinstance(record, bool) else (
+            Path(config.log.out) if config.log.out else default_recording_path(config.model))
+        check_memory(config)
+        outputs = [(checkpoint, "checkpoint")]
+        if record_path is not None:
+            outputs += [(record_path, "recording"), (record_path.with_suffix(".metrics.csv"), "metrics table")]
+        for path, what in outputs:
+            if path is not None:
+                check_writable(Path(path), what)
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
         self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
@@ -117,22 +155,21 @@ class Simulation:
         self.checkpoint_every = checkpoint_every
         if saved is not None:
             self._restore(saved)
-        if record or spawn or connect:
-            self._open_recorder(record, spawn, connect)
+        self._refuse_non_finite_start()
+        if record_path is not None or spawn or connect:
+            self._open_recorder(record_path, spawn, connect)
         if saved is None:
             self._observe(force=True)
+        self._checked = self.model.step_index  # the last step whose state passed the guard (or the start)
+        self._keep_good()
 
     @property
     def step_index(self) -> int:
         return self.model.step_index
 
-    def _open_recorder(self, record: bool | str | Path, spawn: bool, connect: str | None) -> None:
+    def _open_recorder(self, path: Path | None, spawn: bool, connect: str | None) -> None:
         from tflock.record import Recorder
 
-        path = None
-        if record:
-            path = Path(record) if not isinstance(record, bool) else (
-                Path(self.config.log.out) if self.config.log.out else default_recording_path(self.config.model))
         table = path.with_suffix(".metrics.csv") if path is not None else None
         self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
                                  world=self.model.world(), metrics=self.model.metric_descriptions,
@@ -140,28 +177,98 @@ class Simulation:
                                  recording_id=self.recording_id)
         self.files = [p for p in (path, table) if p is not None]
 
+    def _metrics_due(self, t: int) -> bool:
+        return t % self.config.log.metrics_every == 0
+
+    def _frame_due(self, t: int) -> bool:
+        return self.recorder is not None and t % self.config.log.every == 0
+
     def _observe(self, force: bool = False) -> None:
         """Metrics and frame of the current step, at their cadences (or now, when forced)."""
         t = self.model.step_index
-        log = self.config.log
-        if force or t % log.metrics_every == 0:
+        if force or self._metrics_due(t):
             values = self.model.metrics()
             self._rows.append({"step": float(t), "time": t * self.model.dt, **values})
             if self.recorder is not None:
                 self.recorder.log_metrics(t, values)
-        if self.recorder is not None and (force or t % log.every == 0):
-            self.recorder.log_frame(t, self.model.frame(self._selected, log.max_edges))
+        if self.recorder is not None and (force or self._frame_due(t)):
+            self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges))
 
     def step(self, steps: int = 1, progress: Callable[[int], None] | None = None) -> None:
-        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each."""
+        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.
+        Raises :class:`NumericalFaultError` when the state becomes non-finite."""
         for _ in range(steps):
             self.model.advance(1)
-            last = self.model.step_index == self.config.steps
+            t = self.model.step_index
+            last = t == self.config.steps
+            checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
+            if last or checkpoint or self._metrics_due(t) or self._frame_due(t):
+                self._guard()
             self._observe(force=last)
-            if self.checkpoint_every and self.checkpoint_path and self.model.step_index % self.checkpoint_every == 0:
+            if checkpoint:
                 self.save_checkpoint(self.checkpoint_path)
             if progress is not None:
-                progress(self.model.step_index)
+                progress(t)
+
+    # ------------------------------------------------------------------ the non-finite guard
+    def _refuse_non_finite_start(self) -> None:
+        """A start state that is already non-finite (numbers beyond the float range) stops before anything is
+        written."""
+        found = self.model.first_non_finite()
+        if found is None:
+            return
+        agent, quantity = found
+        t, precision = self.model.step_index, self.config.engine.precision
+        largest = "3.4e38" if precision == "f32" else "1.8e308"
+        raise NumericalFaultError(
+            f"numerical fault in {self.config.model} at step {t}: agent {agent} has a non-finite {quantity} in the "
+            f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
+            model=self.config.model, step=t, agent=agent, quantity=quantity, checkpoint=None)
+
+    def _keep_good(self) -> None:
+        """Keep a host copy of the current (good) state to replay from after a fault."""
+        t0 = time.perf_counter()
+        self._good = (self.model.checkpoint(), self.model.step_index)
+        self._good_at = time.perf_counter()
+        self._good_cost = self._good_at - t0
+
+    def _guard(self) -> None:
+        """Check the state before anything of this step is kept: stop at a non-finite value, else now and then
+        keep a copy of this good state."""
+        if self.model.first_non_finite() is not None:
+            self._fault()
+        self._checked = self.model.step_index
+        if time.perf_counter() - self._good_at >= GOOD_COPY_RATIO * self._good_cost:
+            self._keep_good()
+
+    def _fault(self) -> None:
+        """Replay from the kept good state, checking every step after the last one that passed the guard, to the
+        first bad step; save the state before it, close the recording and raise NumericalFaultError."""
+        detected, seen = self.model.step_index, self.model.first_non_finite()
+        arrays, start = self._good
+        self.model.restore(arrays, start)
+        self.model.advance(self._checked - start)
+        found = None
+        while found is None and self.model.step_index < detected:
+            good = self.model.checkpoint()
+            self.model.advance(1)
+            found = self.model.first_non_finite()
+        agent, quantity = found or seen  # steps are deterministic: the replay finds it again, at or before
+        bad = self.model.step_index
+        self.model.restore(good, bad - 1)
+        path = self.checkpoint_path or (
+            self.recorder.path if self.recorder is not None and self.recorder.path is not None
+            else default_recording_path(self.config.model)).with_suffix(".lastgood.npz")
+        try:
+            saved: Path | None = self.save_checkpoint(path)
+            where = f"the last good state (step {bad - 1}) is saved in {path}"
+        except OSError as e:
+            saved, where = None, f"the last good state (step {bad - 1}) could not be saved to {path}: {e.strerror or e}"
+        self.close()
+        message = (f"numerical fault in {self.config.model} at step {bad}: agent {agent} has a non-finite {quantity}; "
+                   f"the run stopped (nothing after step {self._checked} is recorded) and {where}")
+        raise NumericalFaultError(message, model=self.config.model, step=bad, agent=agent, quantity=quantity,
+                                  checkpoint=saved)
 
     def run(self, progress: Callable[[int], None] | None = None) -> None:
         """Step up to the configured number of steps."""

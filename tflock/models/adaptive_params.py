@@ -1,9 +1,9 @@
 """Parameters of the Li-Wang adaptive-velocity model (DESIGN.md section 3.2; papers/002). Taichi-free."""
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from tflock.config import Float, Int, _rule_error, register_model
 
@@ -16,6 +16,15 @@ def agreement_tolerance(itemsize: int) -> float:
     below 1.
     """
     return 1e-6 if itemsize == 8 else 1e-5
+
+
+def _alpha(value: Any) -> Any:
+    """A number >= 0, or infinity (eq. 6) written ``"inf"`` or as TOML's bare ``inf``; nan and -inf are errors."""
+    if value == "inf" or (isinstance(value, float) and value == math.inf):
+        return "inf"
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+        raise _rule_error('must be a number >= 0 or "inf"', value)
+    return value
 
 
 class AdaptiveParams(BaseModel):
@@ -32,7 +41,7 @@ class AdaptiveParams(BaseModel):
     box: Float = Field(91.3, gt=0, description="side L of the initial square (cube), > 0; a wall only when periodic")
     radius: Float = Field(2.0, gt=0, description="interaction radius R, > 0 (neighbours |X_i - X_j| <= R)")
     speed: Float = Field(0.5, ge=0, description="maximum speed v0, distance per step, >= 0")
-    alpha: Float | Literal["inf"] = Field(
+    alpha: Annotated[float | Literal["inf"], BeforeValidator(_alpha)] = Field(
         1.0, description='exponent alpha >= 0 of the speed v0 phi_i^alpha (eq. 5), or "inf" (eq. 6)'
     )
     noise: Float = Field(
@@ -41,21 +50,6 @@ class AdaptiveParams(BaseModel):
                     "of half-angle eta",
     )
     boundary: Literal["open", "periodic"] = Field("open", description="open space (the paper's) or periodic box")
-
-    @field_validator("alpha", mode="before")
-    @classmethod
-    def _inf_spelling(cls, value: Any) -> Any:
-        """TOML's bare ``inf`` means the same as ``"inf"``."""
-        if isinstance(value, float) and value == math.inf:
-            return "inf"
-        return value
-
-    @field_validator("alpha")
-    @classmethod
-    def _non_negative(cls, value: float | str) -> float | str:
-        if value != "inf" and value < 0:
-            raise _rule_error('must be >= 0 or "inf"', value)
-        return value
 
 
 register_model("adaptive", AdaptiveParams, "Li-Wang adaptive velocity (2D and 3D): speed v0 phi^alpha",

@@ -7,6 +7,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.guard import Guarded, first_non_finite
 from tflock.neighbors import SubsetDrawing
 from tflock.record import Frame, WorldSpec
 
@@ -20,6 +21,9 @@ class Model(ABC):
 
     name: str
     dt: float = 1.0
+    #: state arrays of the non-finite guard: attribute name -> quantity (those the model has; agents in ``ids`` order)
+    guarded_state: Mapping[str, str] = {"pos": "position", "theta": "heading", "dirs": "heading",
+                                        "vel": "velocity", "phi": "velocity"}
     #: metric name -> one-line description, in the order the metrics table uses
     metric_descriptions: Mapping[str, str]
 
@@ -58,6 +62,13 @@ class Model(ABC):
     @abstractmethod
     def world(self) -> WorldSpec:
         """Geometry of the world for the recorder."""
+
+    def first_non_finite(self) -> tuple[int, str] | None:
+        """``(agent, quantity)`` of the smallest agent id with a non-finite position, heading or velocity (one
+        kernel pass over each array of :attr:`guarded_state`), or None when the state is finite."""
+        guarded = [Guarded(quantity, getattr(self, name)) for name, quantity in self.guarded_state.items()
+                   if isinstance(getattr(self, name, None), ti.Ndarray)]
+        return first_non_finite(guarded, self.ids)
 
     def checkpoint(self) -> dict[str, np.ndarray]:
         """Everything the model holds, exactly as held: its ndarrays (alone or in lists, e.g. double buffers,

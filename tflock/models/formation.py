@@ -47,6 +47,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.guard import Guarded, first_non_finite
 from tflock.metrics import BLOCK, n_blocks
 from tflock.models.base import Model
 from tflock.models.formation_params import (
@@ -366,6 +367,13 @@ class Formation(Model):
         return {"x": x, "theta": f[THETA], "speed": f[SPEED], "inside": i[IN_FLAG], "ramp_from": f[RAMP_FROM],
                 "ramp_start": i[RAMP_START], "ramp_duration": f[RAMP_DURATION],
                 "tau": np.array(int(self.tau.to_numpy()[0])), "va": self.va_position()}
+
+    def first_non_finite(self) -> tuple[int, str] | None:
+        """The guard over the current buffers: positions, headings and speeds (not the ramp bookkeeping)."""
+        k = self.cur
+        guarded = [Guarded("position", self.pos[k]), Guarded("heading", self.f[k], (THETA, THETA + 1)),
+                   Guarded("velocity", self.f[k], (SPEED, SPEED + 1))]
+        return first_non_finite(guarded, self.ids[k])
 
     def rules(self) -> np.ndarray:
         """What drove each agent (agent order) at the last step: SEPARATION, INSIDE, OUTSIDE or FAILED."""

@@ -85,7 +85,7 @@ def read_edge_file(path: str | Path, n: int) -> np.ndarray:
         if not line:
             continue
         fields = line.replace(",", " ").split()
-        if len(fields) != 2 or not all(f.lstrip("-").isdigit() for f in fields):
+        if len(fields) != 2 or not all(f.lstrip("-").isdecimal() for f in fields):
             raise GraphError(f"{path}:{number}: expected two agent ids 'i j', got {line!r}")
         i, j = int(fields[0]), int(fields[1])
         if not (0 <= i < n and 0 <= j < n):

@@ -61,7 +61,8 @@ class PotentialParams(BaseModel):
             raise _rule_error(f"must be < params.desired_distance (= {self.desired_distance:g})",
                               self.min_separation, key="min_separation")
         ball = math.pi / 4 if self.dim == 2 else math.pi / 6  # volume of a ball of unit diameter
-        packing = self.n * ball * self.min_separation**self.dim / self.box**self.dim
+        # a product of the ratio (it overflows to inf; a power of a huge float raises)
+        packing = self.n * ball * math.prod([self.min_separation / self.box] * self.dim)
         if packing > MAX_PACKING[self.dim]:
             raise _rule_error(f"too large for n = {self.n} in a box of side {self.box:g} (packing fraction "
                               f"{packing:.2f} > {MAX_PACKING[self.dim]})", self.min_separation, key="min_separation")
