@@ -222,12 +222,12 @@ def test_entering_ramp_is_linear(engine):
     x = rf.va_position(0, p) + [25.2, 0.0]
     model.set_state({"x": x[None, :], "theta": np.array([math.pi])}, 0)
     speeds = []
-    for _ in range(40):
+    for _ in range(80):
         model.advance(1)
         speeds.append(float(model.state()["speed"][0]))
     state = model.state()
     start = int(state["ramp_start"][0])
-    duration = p.vair / p.out_speed  # T with rnd = 0
+    duration = p.vair / (p.out_speed - p.va_speed)  # T with rnd = 0: the VAIR at the closing speed on the VA
     assert state["ramp_duration"][0] == pytest.approx(duration)
     for t, v in enumerate(speeds):
         expected = p.out_speed - (p.out_speed - p.va_speed) * min(1.0, max(0.0, (t + 1 - start) / duration))

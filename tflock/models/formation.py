@@ -22,7 +22,8 @@ on the VA, behind it (section 4), headings uniform in [0, 2 pi). One synchronous
    eps ~ U[-delta, delta] (``Stream.NOISE``), wrapped into [0, 2 pi).
 5. speed, eqs. (1)-(2): crossing the VAIR (inside at x(t) differs from the stored flag) starts a linear ramp
    from the current speed v_ini at t_s = t toward |va| (entering) or |vout| (leaving), lasting
-   dt_i = max(1, T + rnd), T = VAIR / v_ini ("time to move from the VAIR boundary to the VA"),
+   dt_i = max(1, T + rnd), T = VAIR / (|vout| - |va|) ("time to move from the VAIR boundary to the VA's position",
+   at the closing speed of an agent chasing the VA: ``FormationParams.ramp_time``),
    rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper: gamma ~ T; drawn from stream 300). The printed
    eq. (1), |v| = |va| - (|v_ini| - |va|)(t - t_f)/dt_i with t_f = t_s + dt_i, is that ramp (t - t_f <= 0);
    the printed eq. (2) runs backwards (it ends at |va|), so we read it as the same ramp toward |vout|:
@@ -72,7 +73,7 @@ from tflock.space import PERIODIC, displacement, wrap_periodic, wrap_pi, wrap_tw
 TWO_PI = 2 * math.pi
 # slots of the constants array
 R2, ALIGN2, SEP2, VAIR2, WORLD, CAP, SEP_CAP, W_A, W_C, W_AV, W_CV, VA_HEADING, FAIL, NOISE, VA_SPEED, OUT_SPEED, \
-    JITTER, BETA, N_CONSTS = range(19)
+    JITTER, RAMP_TIME, BETA, N_CONSTS = range(20)
 # rows of the float and int state arrays
 THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
 IN_FLAG, RAMP_START = range(2)
@@ -187,9 +188,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
         if flag != i_old[IN_FLAG, e]:
             v_from = f_old[SPEED, e]
             t_start = t
-            period = ti.sqrt(c[VAIR2]) / v_from
-            jitter = c[JITTER] * period * (2.0 * uniform_ti(seed, t, i, RAMP_STREAM) - 1.0)
-            duration = ti.max(1.0, period + jitter)
+            jitter = c[JITTER] * c[RAMP_TIME] * (2.0 * uniform_ti(seed, t, i, RAMP_STREAM) - 1.0)
+            duration = ti.max(1.0, c[RAMP_TIME] + jitter)
         target = ti.select(inside, c[VA_SPEED], c[OUT_SPEED])
         progress = (t + 1 - t_start) / duration
         speed = target
@@ -315,7 +315,7 @@ class Formation(Model):
         c[W_A], c[W_C], c[W_AV], c[W_CV] = w.align, w.cohesion, w.va_align, w.va_cohesion
         c[VA_HEADING] = math.radians(p.va_heading_deg) % TWO_PI
         c[FAIL], c[NOISE] = p.fail_prob, math.radians(p.noise_deg)
-        c[VA_SPEED], c[OUT_SPEED], c[JITTER] = p.va_speed, p.out_speed, p.ramp_jitter
+        c[VA_SPEED], c[OUT_SPEED], c[JITTER], c[RAMP_TIME] = p.va_speed, p.out_speed, p.ramp_jitter, p.ramp_time
         c[BETA] = math.radians(p.beta_lim_deg)
         return c
 

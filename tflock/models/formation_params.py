@@ -70,7 +70,7 @@ class FormationParams(BaseModel):
     ramp_jitter: Float = Field(
         1.0, ge=0, le=1,
         description="gamma / T of the speed ramps, in [0, 1]: a ramp lasts dt_i = T + rnd, rnd ~ U(-gamma, gamma), "
-                    "T = vair / speed at the crossing (eqs. 1-2; the paper uses gamma ~ T)",
+                    "T = vair / (out_speed - va_speed) (eqs. 1-2; the paper uses gamma ~ T)",
     )
     fail_prob: Float = Field(
         0.0, ge=0, le=1, description="communication failure p in [0, 1]: an agent ignores all stimuli for one step",
@@ -87,6 +87,16 @@ class FormationParams(BaseModel):
     init_length: Float = Field(76.0, gt=0, description="initial rectangle's side along the VA heading, behind the VA")
     init_width: Float = Field(36.0, gt=0, description="initial rectangle's side across the VA heading")
 
+
+    @property
+    def ramp_time(self) -> float:
+        """T of the speed ramps (eqs. 1-2), "the approximate time for the agent to move from the VAIR boundary to
+        the VA's position": an agent at |vout| closes on the VA at |vout| - |va|, so T = vair / (|vout| - |va|).
+        With the jitter gamma = T a ramp's length is uniform in (0, 2T) and the depth an entering agent gains on
+        the VA, (|vout| - |va|) dt_i / 2, uniform in (0, vair): the paper's "homogeneous distribution of agents
+        inside the VAIR". Equal speeds make the ramps flat and T moot (vair / |va| then)."""
+        closing = self.out_speed - self.va_speed
+        return self.vair / closing if closing > 0 else self.vair / self.va_speed
     @model_validator(mode="after")
     def _cross_field_rules(self) -> FormationParams:
         if self.min_separation > self.radius:
