@@ -29,3 +29,23 @@ def make_sim(engine):
         return Simulation(**kwargs)
 
     return make
+
+
+@pytest.fixture(scope="session")
+def reproduce_quick():
+    """``run(name, out)``: ``tflock reproduce NAME --quick --out OUT`` in a subprocess (reproductions run at the
+    default f32 engine; this process's Taichi is f64), failing the test with its stderr unless it exits 0."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")])}
+
+    def run(name: str, out: Path) -> Path:
+        done = subprocess.run([sys.executable, "-m", "tflock", "reproduce", name, "--quick", "--out", str(out)],
+                              capture_output=True, text=True, env=env, timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return out
+
+    return run

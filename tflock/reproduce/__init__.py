@@ -13,6 +13,11 @@ from tflock.reproduce.experiment import Experiment, Report, Results
 #: name -> "module:Class", imported on use
 EXPERIMENTS: dict[str, str] = {
     "vicsek-noise": "tflock.reproduce.vicsek_noise:VicsekNoise",
+    "jadbabaie": "tflock.reproduce.jadbabaie:Jadbabaie",
+    "tanner": "tflock.reproduce.tanner:Tanner",
+    "formation": "tflock.reproduce.formation:Formation",
+    "liwang": "tflock.reproduce.liwang:LiWang",
+    "samiloglu": "tflock.reproduce.samiloglu:Samiloglu",
 }
 
 
