@@ -64,7 +64,7 @@ def reproduce(name: str, *, quick: bool = False, out: str | Path | None = None, 
         computed += not was_loaded
         report(run_name, k + 1, len(runs))
     outcome = exp.report(results, quick)
-    files = _write_report(exp, outcome, out, quick, time.perf_counter() - start)
+    files = _write_report(exp, outcome, out, quick, time.perf_counter() - start, computed, loaded)
     return Reproduction(name, out, files, time.perf_counter() - start, computed, loaded)
 
 
@@ -95,7 +95,7 @@ def _atomic_csv(frame: pd.DataFrame, path: Path) -> None:
         raise ConfigError(f"--out: cannot write {path}: {error.strerror or error}") from None
 
 
-def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float) -> list[Path]:
+def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed: int, loaded: int) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -113,7 +113,8 @@ def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float) -> list[P
     size = "quick (--quick: reduced sizes for CI)" if quick else "the paper's size"
     header = (f"# {exp.title}\n\nSource: {exp.source}. Size: {size}. "
               f"Command: `tflock reproduce {exp.name}{' --quick' if quick else ''}`. "
-              f"Wall time here: {wall_s:.0f} s ({platform.processor() or platform.machine()}).\n\n")
+              f"Wall time of this invocation: {wall_s:.0f} s ({platform.processor() or platform.machine()}), "
+              f"{computed} runs or sweep points computed and {loaded} read back from an earlier invocation.\n\n")
     comparison = out / "comparison.md"
     comparison.write_text(header + outcome.comparison.strip() + "\n")
     return [*files, table_path, comparison]
