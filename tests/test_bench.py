@@ -1,11 +1,16 @@
 """`tflock bench` at tiny sizes: the cases run, the peers are timed, the results are written as data."""
 
 import csv
+import importlib.util
 import json
+import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+
+HAS_NUMBA = importlib.util.find_spec("numba") is not None
 
 
 def test_bench_writes_json_csv_and_plot(tmp_path):
@@ -25,12 +30,15 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
         assert r["build_ms"] > 0 and r["interactions_ms"] >= 0 and r["metrics_ms"] > 0 and r["logging_ms"] > 0
         assert r["mean_neighbors"] > 0 and r["first_step_s"] > 0
         assert 50 < r["device_bytes_per_agent"] < 400 and r["peak_rss_mb"] > 0
-        assert set(r["peers"]) == {"numpy_reference", "ckdtree_sparse"}
-        assert r["peers"]["numpy_reference"]["ratio"] == pytest.approx(r["peers"]["numpy_reference"]["ms"]
-                                                                     / r["ms_median"])
+        assert set(r["peers"]) == {"numpy_reference", "ckdtree_sparse"} | ({"numba_cells"} if HAS_NUMBA else set())
+        for peer in r["peers"].values():
+            assert peer["ms"] > 0 and peer["ratio"] == pytest.approx(peer["ms"] / r["ms_median"])
+        if HAS_NUMBA:
+            assert r["peers"]["numba_cells"]["first_call_s"] > 0
     with open(prefix.with_suffix(".csv")) as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 4 and "ckdtree_sparse_ratio" in rows[0]
+    assert not HAS_NUMBA or {"numba_cells_ms", "numba_cells_ratio", "numba_cells_first_call_s"} <= set(rows[0])
     assert prefix.with_suffix(".png").stat().st_size > 10_000
     assert "agent-steps/s" in proc.stdout
 
@@ -42,3 +50,32 @@ def test_bench_bad_input_is_one_line(args, key):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("n,box", [(1500, 27.4), (40, 2.5)])  # 27 cells a side; under 3 cells: one cell
+def test_numba_peer_is_the_reference_vicsek_step(n, box):
+    """The bench's numba peer computes tflock's model: one noiseless step equals the NumPy reference (f64 1e-10,
+    f32 1e-5, from the same state), and the noise is U[-eta/2, eta/2] around the noiseless heading."""
+    pytest.importorskip("numba")
+    from tflock import reference
+    from tflock.config import VicsekParams
+    from tflock.peers.numba_vicsek import vicsek_step
+
+    rng = np.random.default_rng(3)
+    x0, theta0 = rng.random((n, 2)) * box, rng.random(n) * 2 * math.pi
+    x0[:4] = [[0.0, 0.0], [box - 1e-3, 0.5], [0.3, box - 1e-3], [box / 2, box / 2]]  # at the box edges
+    params = VicsekParams(n=n, box=box, noise=0.0)
+    for dtype, tol in ((np.float64, 1e-10), (np.float32, 1e-5)):
+        x_start, theta_start = x0.astype(dtype), theta0.astype(dtype)
+        ref_x, ref_theta = reference.vicsek_step(x_start.astype(np.float64), theta_start.astype(np.float64), 0,
+                                                 params, seed=1)
+        x, theta = vicsek_step(x_start, theta_start, box, params.radius, params.speed, 0.0)
+        assert x.dtype == theta.dtype == dtype
+        assert np.all((theta >= 0) & (theta < 2 * math.pi)) and np.all((x >= 0) & (x < box))
+        assert np.abs(reference.wrap_pi(theta.astype(np.float64) - ref_theta)).max() < tol
+        dx = x - ref_x
+        assert np.abs(dx - box * np.round(dx / box)).max() < tol
+    eta = 0.5
+    _, noisy = vicsek_step(x0, theta0, box, params.radius, params.speed, eta)
+    xi = reference.wrap_pi(noisy - ref_theta)
+    assert np.abs(xi).max() <= eta / 2 + 1e-9 and xi.std() > 0.5 * eta / math.sqrt(12)

@@ -11,7 +11,8 @@ peak resident memory and the model's device bytes per agent.
 Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
 as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
 takes under ~10 s a step) and, for Vicsek when scipy is installed, a cKDTree + sparse-matrix step written the way
-the common minimal scripts do it.
+the common minimal scripts do it, and when numba is installed, a parallel Numba cell-list step written the usual
+way (`tflock.peers.numba_vicsek`; its first call, JIT compile or cache load, is reported apart as first_call_s).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ import numpy as np
 
 STATES = ("uniform", "developed")
 PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less than this
+#: expected time of a numba cell-list peer step: per agent and per agent-neighbour pair (2 loaded cores)
+NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 
 
 @dataclass(frozen=True)
@@ -73,14 +76,15 @@ class BenchResult:
     logging_ms: float | None = None
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
-    peers: dict[str, dict[str, float]] = field(default_factory=dict)  # name -> {"ms": .., "ratio": peer / tflock}
+    # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
+    peers: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def row(self) -> dict[str, Any]:
         """Flat dict for CSV / tables."""
         out = {**asdict(self.case), **{k: v for k, v in asdict(self).items() if k not in ("case", "peers")}}
         for name, peer in self.peers.items():
-            out[f"{name}_ms"] = peer["ms"]
-            out[f"{name}_ratio"] = peer["ratio"]
+            for key, value in peer.items():
+                out[f"{name}_{key}"] = value
         return out
 
 
@@ -145,7 +149,40 @@ def _ckdtree_vicsek_step(x: np.ndarray, theta: np.ndarray, params: Any, rng: np.
     return x, theta
 
 
-def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float) -> dict[str, dict[str, float]]:
+def _time_numba_peer(state: dict[str, np.ndarray], params: Any, ms_tflock: float, mean_neighbors: float,
+                     threads: int) -> dict[str, dict[str, float]]:
+    """The parallel Numba cell-list step on tflock's state, in tflock's precision and thread count (periodic
+    synchronous `vector` rule only; nothing without numba or where a step would take over ~10 s)."""
+    if (params.boundary != "periodic" or params.rule != "vector" or params.async_bound != 1 or params.leader.enabled
+            or params.max_turn_deg < 360):
+        return {}
+    try:
+        import numba
+
+        from tflock.peers.numba_vicsek import vicsek_step
+    except ImportError:
+        return {}
+    n = len(state["theta"])
+    expected_s = n * (NUMBA_S_PER_AGENT + NUMBA_S_PER_PAIR * max(1.0, mean_neighbors))
+    if expected_s >= PEER_BUDGET_S:
+        return {}
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS) if threads > 0
+                          else numba.config.NUMBA_NUM_THREADS)
+    args = (state["x"], state["theta"], params.box, params.radius, params.speed, params.noise)
+    t0 = time.perf_counter()
+    vicsek_step(*args)  # JIT compile, or load from numba's cache
+    first_call_s = time.perf_counter() - t0
+    times: list[float] = []
+    while len(times) < 5 and sum(times) < 3e3:  # up to 5 steps, ~3 s
+        t0 = time.perf_counter()
+        vicsek_step(*args)
+        times.append(1e3 * (time.perf_counter() - t0))
+    ms = statistics.median(times)
+    return {"numba_cells": {"ms": ms, "ratio": ms / ms_tflock, "first_call_s": first_call_s}}
+
+
+def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
+                threads: int = 0) -> dict[str, dict[str, float]]:
     """Peers on the model's current state (Vicsek only: the references of other models come with them)."""
     if model.name != "vicsek":
         return {}
@@ -162,10 +199,12 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float) -> dict[str
         peers["numpy_reference"] = {"ms": ms, "ratio": ms / ms_tflock}
     try:
         import scipy  # noqa: F401
+
+        has_scipy = True
     except ImportError:
-        return peers
+        has_scipy = False
     expected_s = 2e-6 * n * max(1.0, mean_neighbors)  # ~2 us per neighbour pair on this class of machine
-    if expected_s < PEER_BUDGET_S:
+    if has_scipy and expected_s < PEER_BUDGET_S:
         rng = np.random.default_rng(0)
         times = []
         for _ in range(3 if expected_s < 1 else 1):
@@ -174,6 +213,7 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float) -> dict[str
             times.append(1e3 * (time.perf_counter() - t0))
         ms = statistics.median(times)
         peers["ckdtree_sparse"] = {"ms": ms, "ratio": ms / ms_tflock}
+    peers.update(_time_numba_peer(state, params, ms_tflock, mean_neighbors, threads))
     return peers
 
 
@@ -215,7 +255,7 @@ def run_case(case: BenchCase) -> BenchResult:
                 model.step_index, model.frame(sim._selected, 0)), ti.sync)
         result.device_bytes_per_agent = _device_bytes(model) / case.n
         if case.peers:
-            result.peers = _time_peers(model, result.ms_median, result.mean_neighbors)
+            result.peers = _time_peers(model, result.ms_median, result.mean_neighbors, sim.engine.threads)
         sim.close()
     result.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return result
@@ -290,7 +330,7 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
     groups: dict[tuple[str, str, bool], list[BenchResult]] = {}
     for r in results:
         groups.setdefault((r.case.model, r.case.state, r.case.log), []).append(r)
-    styles = {"numpy_reference": ":", "ckdtree_sparse": "--"}
+    styles = {"numpy_reference": ":", "ckdtree_sparse": "--", "numba_cells": "-."}
     for index, ((model, state, log), rs) in enumerate(groups.items()):
         color = f"C{index % 10}"
         rs.sort(key=lambda r: r.case.n)

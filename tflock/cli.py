@@ -320,7 +320,9 @@ def bench(
     arch: Annotated[str, typer.Option(help="cpu | cuda | vulkan | auto.")] = "cpu",
     precision: Annotated[str, typer.Option(help="f32 | f64.")] = "f32",
     log: Annotated[bool, typer.Option("--log/--no-log", help="Also time logging a 50k-agent frame.")] = False,
-    peers: Annotated[bool, typer.Option("--peers/--no-peers", help="Time the NumPy and cKDTree peers.")] = True,
+    peers: Annotated[bool, typer.Option("--peers/--no-peers", help=(
+        "Time the peers: the NumPy reference, and the cKDTree and Numba steps where scipy / numba are installed "
+        "(pip install tflock[bench])."))] = True,
     prefix: Annotated[Path | None, typer.Option("--out", help="Results prefix (.json/.csv/.png added).")] = None,
 ) -> None:
     """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under benchmarks/."""
