@@ -40,6 +40,25 @@ def test_open_space_far_apart_groups(engine):
     assert m["mean_neighbors"] == pytest.approx(expected["mean_neighbors"])
 
 
+def test_open_space_shared_buckets(engine):
+    """Agents spread over many more cells than the hash table has buckets: buckets shared by several cells are
+    filtered agent by agent, buckets of one other cell are skipped whole, and the degrees and clusters are still
+    exactly the brute-force ones."""
+    rng = np.random.default_rng(5)
+    x = np.concatenate([rng.random((600, 2)) * 60.0, rng.random((200, 2)) * 4.0])  # sparse field + dense clump
+    model = model_at(engine, x, "open", 1.0, 1.0)
+    m = model.metrics()
+    grid = model.grid
+    mixed = grid.mixed.to_numpy()
+    occupied = np.diff(grid.start.to_numpy()) > 0
+    assert mixed.sum() >= 20 and (occupied & (mixed == 0)).sum() >= 100  # both kinds of bucket are exercised
+    expected_degree = ref.adjacency(x.astype(engine.real), 1.0, "open", 1.0).sum(axis=1)
+    assert np.array_equal(model.graph.degree.to_numpy(), expected_degree)
+    expected = ref.graph_metrics(x, 1.0, "open", 1.0)
+    assert m["clusters"] == expected["clusters"]
+    assert m["largest_cluster"] == pytest.approx(expected["largest_cluster"])
+
+
 def test_clusters_on_hand_built_configurations(engine):
     # three separate chains of 10, 5 and 1 agents, spacing 0.9 < R = 1
     chain = lambda start, k: np.array([[start + 0.9 * i, 2.0] for i in range(k)])  # noqa: E731

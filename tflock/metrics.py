@@ -18,6 +18,7 @@ from tflock.neighbors import (
     load_cell,
     load_vec,
     same_cell,
+    span_agents,
     span_count,
     stencil_span,
 )
@@ -102,7 +103,7 @@ def _union(parent: ti.template(), a, z):
 
 @ti.kernel
 def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
            parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
            result: ti.types.ndarray()):
@@ -115,11 +116,13 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         count = 0
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], start[hi]):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
                 if ti.static(boundary == OPEN):
-                    w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                    if check:
+                        w *= same_cell(coords_sorted, k, cell, boundary, dim)
                 count += w
         degree[id_sorted[s]] = count
     for s in range(n):  # union(s, k) for every neighbour k < s
@@ -128,9 +131,11 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
         root = s  # a recent root of s's set: saves walking s's chain for every neighbour
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], ti.min(start[hi], s)):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, ti.min(end, s)):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                if d.norm_sqr() <= radius * radius and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
+                if d.norm_sqr() <= radius * radius and (check == 0 or same_cell(coords_sorted, k, cell, boundary,
+                                                                                 dim) == 1):
                     if parent[k] != root:  # k already hangs under s's root: nothing to merge
                         root = _union(parent, root, k)
     for s in range(n):
@@ -162,8 +167,8 @@ class NeighbourGraph:
     def _run(self, radius: float, box: float) -> None:
         g = self.grid.geometry
         _graph(self.grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
-               self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent, self.size,
-               self.degree, self.result)
+               self.grid.mixed, self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent,
+               self.size, self.degree, self.result)
 
     def compute(self, radius: float, box: float) -> dict[str, float]:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""

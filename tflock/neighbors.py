@@ -9,6 +9,8 @@ thread timing. A query visits the 3^d cells around an agent's cell.
   and a box with fewer than 3 cells per side visits each distinct cell once.
 - open space: cells of side R are hashed into a table of about 2n buckets; a bucket may hold several cells, so a
   query keeps only agents whose cell coordinates equal the visited cell (no double counting, no box assumed).
+  The build marks the buckets that hold more than one cell (``mixed``): a bucket of one cell is kept or skipped
+  whole after one test, and only the agents of a mixed bucket are tested one by one.
 - replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
   shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
   Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
@@ -20,8 +22,10 @@ Models loop over neighbours themselves, with the helpers below, inside their own
         c = load_cell(coords_sorted, s, dim)   # cell coordinates and replica
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], start[hi]):
-                same = same_cell(coords_sorted, k, cell, boundary, dim)   # 1 when k really is in `cell`
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
+                if check:   # open space, a bucket shared by several cells: is k really in `cell`?
+                    same = same_cell(coords_sorted, k, cell, boundary, dim)
 """
 
 
@@ -172,6 +176,28 @@ def same_cell(coords_sorted: ti.template(), k, cell, boundary: ti.template(), di
 
 
 @ti.func
+def span_agents(lo, hi, cell, start: ti.template(), mixed: ti.template(), coords_sorted: ti.template(),
+                boundary: ti.template(), dim: ti.template()):
+    """The sorted agents [begin, end) of the span [lo, hi) that :func:`stencil_span` gave for `cell`, and
+    ``check``: 1 when each of them must still pass :func:`same_cell`.
+
+    In a box every bucket is one cell (check = 0). In open space a bucket that holds one cell is that cell's (one
+    test of its first agent keeps it whole) or another's (skipped); only a bucket ``mixed`` by a hash collision
+    needs the test per agent, which costs about as much as the distance test it guards.
+    """
+    begin = start[lo]
+    end = start[hi]
+    check = 0
+    if ti.static(boundary == OPEN):
+        if begin < end:
+            if mixed[lo] == 1:
+                check = 1
+            elif same_cell(coords_sorted, begin, cell, boundary, dim) == 0:
+                end = begin
+    return begin, end, check
+
+
+@ti.func
 def load_vec(arr: ti.template(), i, dim: ti.template()):
     """Column i of a component-major (dim, n) ndarray as a Taichi vector.
 
@@ -192,7 +218,8 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray()):
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+           mixed: ti.types.ndarray()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
@@ -236,6 +263,13 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
             pos_sorted[d, s] = pos[d, e]
         for d in ti.static(range(dim + 1)):
             coords_sorted[d, s] = coords[d, e]
+    if ti.static(boundary == OPEN):
+        for b in range(total_buckets):  # 1 when the bucket holds agents of more than one cell
+            first = start[b]
+            flag = 0
+            for k in range(first + 1, start[b + 1]):
+                flag |= 1 - same_cell(coords_sorted, k, load_cell(coords_sorted, first, dim), boundary, dim)
+            mixed[b] = flag
 
 
 class CellGrid:
@@ -268,6 +302,8 @@ class CellGrid:
         self.id_sorted = ti.ndarray(ti.i32, n)
         self.pos_sorted = ti.ndarray(ftype, (dim, n))
         self.coords_sorted = ti.ndarray(ti.i32, (dim + 1, n))
+        # open space: 1 for a bucket that holds more than one cell (see span_agents); unused in a box
+        self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
@@ -275,13 +311,13 @@ class CellGrid:
         _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted)
+               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed)
 
 
 @ti.kernel
 def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
            radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
            id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
            coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
            limit: ti.i32, fill: ti.template(), edges: ti.types.ndarray()):
@@ -296,11 +332,12 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.n
         c = load_cell(coords_sorted, s, dim)
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], start[hi]):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
                 j = id_sorted[k]
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
-                if keep and same_cell(coords_sorted, k, cell, boundary, dim) == 1:
+                if keep and (check == 0 or same_cell(coords_sorted, k, cell, boundary, dim) == 1):
                     if ti.static(fill):
                         if e < limit:
                             for a in ti.static(range(dim)):
@@ -342,7 +379,7 @@ class SubsetDrawing:
         if n_sel == 0 or max_edges == 0:
             return np.zeros((0, 2, g.dim), dtype=self.grid.real)
         args = (n_sel, self.ids, self.mask, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
-                g.dim, self.grid.start, self.grid.id_sorted, self.grid.slot_of, self.grid.pos_sorted,
+                g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.slot_of, self.grid.pos_sorted,
                 self.grid.coords_sorted)
         _pairs(*args, self.counts, self.offsets, 0, False, self.offsets)
         per_agent = self.counts.to_numpy()[:n_sel]

@@ -28,7 +28,7 @@ from tflock.engine import EngineInfo
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
-from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.reference.adaptive import initial_draws
 from tflock.rng import Stream, replica_key, uniform_ti
@@ -87,9 +87,10 @@ def _move(n: ti.i32, speed: float, alpha: float, tol: float, box: float, mode: t
 def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, box: float, noise: float,
            cos_eta: float, with_noise: ti.template(), boundary: ti.template(), dim: ti.template(), nc: ti.i32,
            n_buckets: ti.i32,
-           start: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
-           pos: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(), ids: ti.types.ndarray()):
+           start: ti.types.ndarray(), mixed: ti.types.ndarray(), order: ti.types.ndarray(),
+           id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+           payload: ti.types.ndarray(), pos: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(),
+           ids: ti.types.ndarray()):
     """Eqs. (4), (7), (9), (12) with the neighbours of the grid's positions; writes the state in cell order."""
     for s in range(n):  # d_j(k) in cell order: contiguous reads in the neighbour loop
         e = order[s]
@@ -104,11 +105,13 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: floa
         count = 0.0
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            for k in range(start[lo], start[hi]):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 w = ti.select(d.norm_sqr() <= r2, 1.0, 0.0)  # k == s passes: i itself is in Gamma_i
                 if ti.static(boundary == OPEN):
-                    w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                    if check:
+                        w *= same_cell(coords_sorted, k, cell, boundary, dim)
                 acc += w * load_vec(payload, k, dim)
                 count += w
         m = acc / count
@@ -269,9 +272,9 @@ class Adaptive(GridModel):
     def _align(self, with_noise: bool) -> None:
         p, g = self.params, self.grid.geometry
         _align(self.step_index, self.seed, self.n_total, p.n, p.radius, p.box, p.noise, math.cos(p.noise),
-               with_noise, self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order,
-               self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
-               self.dirs, self.phi, self.ids)
+               with_noise, self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed,
+               self.grid.order, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload,
+               self.pos, self.dirs, self.phi, self.ids)
 
     def advance(self, steps: int) -> None:
         p = self.params

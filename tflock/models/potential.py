@@ -34,7 +34,7 @@ from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
-from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_count, stencil_span
+from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
 from tflock.record import Frame, WorldSpec
 from tflock.space import OPEN
 
@@ -69,7 +69,7 @@ def _pair_acceleration(p, v, q, w, d2):
 
 @ti.kernel
 def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(), nc: ti.i32,
-                    n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
+                    n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(), order: ti.types.ndarray(),
                     id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
                     vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
                     ids: ti.types.ndarray()):
@@ -84,11 +84,13 @@ def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.templ
         u = ti.Vector([0.0] * dim)
         for o in range(ti.static(span_count(OPEN, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
-            for k in range(start[lo], start[hi]):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, OPEN, dim)
+            for k in range(begin, end):
                 q = load_vec(pos_sorted, k, dim)
                 r2 = (q - p).norm_sqr()
                 inside = ti.select(r2 < r2cut, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
-                inside *= same_cell(coords_sorted, k, cell, OPEN, dim)
+                if check:
+                    inside *= same_cell(coords_sorted, k, cell, OPEN, dim)
                 q = ti.select(k != s, q, p + 1.0)  # itself: any finite term (weight 0), no 0 / 0
                 u += inside * _pair_acceleration(p, v, q, load_vec(vel_sorted, k, dim), d2)
         v_new = v + dt * u
@@ -119,7 +121,7 @@ def _step_fixed(n: ti.i32, d2: float, dt: float, dim: ti.template(), offsets: ti
 
 @ti.kernel
 def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(), nc: ti.i32,
-                n_buckets: ti.i32, start: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
                 pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), valency: ti.types.ndarray(),
                 energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
     """Per agent (agent order): valency |N_i| (|r_ij| < R), half its saturated potential 1/2 sum (V - V(R)) and
@@ -132,9 +134,10 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
         near = r2cut
         for o in range(ti.static(span_count(OPEN, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
-            for k in range(start[lo], start[hi]):
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, OPEN, dim)
+            for k in range(begin, end):
                 r2 = (load_vec(pos_sorted, k, dim) - p).norm_sqr()
-                other = same_cell(coords_sorted, k, cell, OPEN, dim) == 1 and k != s
+                other = (check == 0 or same_cell(coords_sorted, k, cell, OPEN, dim) == 1) and k != s
                 if other and r2 < r2cut:
                     count += 1
                     pot += d2 / r2 + ti.log(r2) - v_cut
@@ -282,8 +285,9 @@ class Potential(GridModel):
             if self.switching:
                 self._ensure_grid()
                 _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.cells_per_side, g.n_buckets,
-                                self.grid.start, self.grid.order, self.grid.id_sorted, self.grid.pos_sorted,
-                                self.grid.coords_sorted, self.scratch, self.pos, self.vel, self.ids)
+                                self.grid.start, self.grid.mixed, self.grid.order, self.grid.id_sorted,
+                                self.grid.pos_sorted, self.grid.coords_sorted, self.scratch, self.pos, self.vel,
+                                self.ids)
             else:
                 _step_fixed(p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
                             self.pos_next, self.scratch)
@@ -325,8 +329,8 @@ class Potential(GridModel):
         if self.switching:
             v_cut = d2 / p.radius**2 + math.log(p.radius**2)
             _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
-                        self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.valency,
-                        self.energy, self.nearest)
+                        self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
+                        self.valency, self.energy, self.nearest)
             graph = self.graph.compute(p.radius, p.box)
             components = graph["clusters"]
         else:
@@ -335,7 +339,7 @@ class Potential(GridModel):
             if n > EXACT_PAIRS_MAX:
                 v_cut = d2 / p.radius**2 + math.log(p.radius**2)
                 _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
-                            self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
+                            self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
                             self._grid_valency, self._grid_energy, self.nearest)
         if n <= EXACT_PAIRS_MAX:
             _exact_nearest(n, self.dim, self.pos, self.nearest)

@@ -47,6 +47,7 @@ from tflock.neighbors import (
     load_cell,
     load_vec,
     same_cell,
+    span_agents,
     span_count,
     stencil_span,
 )
@@ -85,8 +86,9 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, speed: float, noise: float,
           box: float, max_turn: float, inv_g: float, bound: ti.i32,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
-          nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
-          id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+          nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+          order: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+          coords_sorted: ti.types.ndarray(),
           payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
           turn: ti.types.ndarray(), updated: ti.types.ndarray(), omega: ti.types.ndarray(),
           hist_pos: ti.types.ndarray(), hist_theta: ti.types.ndarray()):
@@ -118,12 +120,14 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
             count = 0.0
             for o in range(ti.static(span_count(boundary, 2))):
                 lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
-                for k in range(start[lo], start[hi]):
+                begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, 2)
+                for k in range(begin, end):
                     if ti.static(not asynchronous):
                         d = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
                         w = ti.select(d.norm_sqr() <= r2, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
                         if ti.static(boundary == OPEN):
-                            w *= same_cell(coords_sorted, k, cell, boundary, 2)
+                            if check:
+                                w *= same_cell(coords_sorted, k, cell, boundary, 2)
                         if ti.static(rule == VECTOR):
                             acc_a += w * payload[0, k]
                             acc_b += w * payload[1, k]
@@ -134,7 +138,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                         count += w
                     else:  # agent j as seen at tau ~ U{t-B+1, ..., t} (003 Assumption 1b)
                         d_now = displacement(p, load_vec(pos_sorted, k, 2), box, boundary)
-                        if d_now.norm_sqr() <= reach2 and k != s and same_cell(coords_sorted, k, cell, boundary, 2):
+                        if d_now.norm_sqr() <= reach2 and k != s and (
+                                check == 0 or same_cell(coords_sorted, k, cell, boundary, 2) == 1):
                             j = id_sorted[k]
                             delay = randint_ti(pair_hash_ti(key, t, local, j - (i - local), Stream.DELAY), bound)
                             slot = (t - delay + ring) % ring
@@ -327,9 +332,9 @@ class Vicsek(GridModel):
             _step(self.step_index, self.seed, self.n_total, p.n, p.radius, p.speed, p.noise, p.box,
                   math.radians(p.max_turn_deg), inv_g, p.async_bound,
                   RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
-                  g.cells_per_side, g.n_buckets, self.grid.start, self.grid.order, self.grid.id_sorted,
-                  self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos, self.theta, self.ids,
-                  self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
+                  g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed, self.grid.order,
+                  self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
+                  self.theta, self.ids, self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
             self.step_index += 1
 
     def metrics(self) -> dict[str, float]:
