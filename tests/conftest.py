@@ -6,8 +6,13 @@ engine settings (thread counts, the CLI) runs in a subprocess.
 """
 
 import os
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 import pytest
+from typer.testing import CliRunner
 
 PRECISION = os.environ.get("TFLOCK_TEST_PRECISION", "f64")
 
@@ -49,3 +54,38 @@ def reproduce_quick():
         return out
 
     return run
+
+
+@pytest.fixture(autouse=True)
+def _restore_signal_handlers() -> Iterator[None]:
+    """`tflock sim` run in-process installs SIGINT / SIGTERM handlers for its run; give pytest its own back."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
+
+
+def invoke_in(cwd: Path, args: list[str]) -> Any:
+    """`tflock ARGS` in-process (typer's CliRunner) with `cwd` as the current directory."""
+    from tflock.cli import app
+
+    old = os.getcwd()
+    os.chdir(cwd)
+    try:
+        return CliRunner().invoke(app, args)
+    finally:
+        os.chdir(old)
+
+
+def assert_one_error_line(result: Any, *needles: str) -> str:
+    """Exit code 2 and exactly one non-empty line, ``error: ...`` with every needle, and no traceback."""
+    output = result.stdout + result.stderr
+    described = f"exit {result.exit_code}, exception {result.exception!r}\n{output}"
+    assert result.exit_code == 2, described
+    assert result.exception is None or isinstance(result.exception, SystemExit), described
+    assert "Traceback" not in output, described
+    lines = output.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and len(lines[0]) > len("error: "), described
+    for needle in needles:
+        assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
+    return lines[0]

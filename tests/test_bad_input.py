@@ -13,22 +13,18 @@ which the tests enforce by making the engine's start-up fail loudly.
 
 import math
 import os
-import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
 import numpy as np
 import pytest
-from conftest import PRECISION
+from conftest import PRECISION, assert_one_error_line, invoke_in
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel, TypeAdapter
-from typer.testing import CliRunner
 
-from tflock.cli import app
 from tflock.config import PARAMS_SCHEMAS, Config, load_config
 
 try:
@@ -44,15 +40,6 @@ GENERATED = settings(max_examples=50, deadline=None, derandomize=True, database=
 
 # ----------------------------------------------------------------------------------------------------------
 # Helpers
-
-
-@pytest.fixture(autouse=True)
-def _restore_signal_handlers() -> Iterator[None]:
-    """`tflock sim` installs SIGINT / SIGTERM handlers for its run; give pytest its own back."""
-    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for sig, handler in saved.items():
-        signal.signal(sig, handler)
 
 
 @pytest.fixture(autouse=True)
@@ -153,34 +140,10 @@ def listing(root: Path) -> set[str]:
     return {str(p.relative_to(root)) for p in root.rglob("*")}
 
 
-def invoke(args: list[str], cwd: Path) -> Any:
-    """`tflock ARGS` in-process with `cwd` as the current directory."""
-    old = os.getcwd()
-    os.chdir(cwd)
-    try:
-        return CliRunner().invoke(app, args)
-    finally:
-        os.chdir(old)
-
-
-def assert_refused(result: Any, *needles: str) -> str:
-    """Exit code 2 and exactly one non-empty line, ``error: ...`` with every needle, and no traceback."""
-    output = result.stdout + result.stderr
-    described = f"exit {result.exit_code}, exception {result.exception!r}\n{output}"
-    assert result.exit_code == 2, described
-    assert result.exception is None or isinstance(result.exception, SystemExit), described
-    assert "Traceback" not in output, described
-    lines = output.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and len(lines[0]) > len("error: "), described
-    for needle in needles:
-        assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
-    return lines[0]
-
-
 def refused_cleanly(args: list[str], cwd: Path, *needles: str) -> str:
-    """`assert_refused`, and nothing was written in `cwd`."""
+    """`assert_one_error_line`, and nothing was written in `cwd`."""
     before = listing(cwd)
-    line = assert_refused(invoke(args, cwd), *needles)
+    line = assert_one_error_line(invoke_in(cwd, args), *needles)
     assert listing(cwd) == before, f"files left behind: {sorted(listing(cwd) - before)}"
     return line
 
@@ -679,24 +642,6 @@ def test_generated_checkpoints(tmp_path_factory: pytest.TempPathFactory, no_engi
 # The memory estimate against the arrays the models really allocate
 
 
-def _allocated_bytes(obj: object, seen: set[int], depth: int = 0) -> int:
-    """Bytes of the Taichi ndarrays `obj` holds, alone or in lists, and those of the objects it holds."""
-    import taichi as ti
-
-    total = 0
-    for value in vars(obj).values():
-        items = value if isinstance(value, (list, tuple)) else [value]
-        for item in items:
-            if id(item) in seen:
-                continue
-            seen.add(id(item))
-            if isinstance(item, ti.Ndarray):
-                total += int(np.prod(item.shape)) * (8 if item.dtype in (ti.f64, ti.i64) else 4)
-            elif depth < 2 and hasattr(item, "__dict__") and not isinstance(item, type):
-                total += _allocated_bytes(item, seen, depth + 1)
-    return total
-
-
 @pytest.mark.parametrize(("model", "overrides"), [
     ("vicsek", {"params.n": 20_000, "params.box": 100.0}),
     ("vicsek", {"params.n": 20_000, "params.box": 100.0, "params.async_bound": 3}),
@@ -706,12 +651,13 @@ def _allocated_bytes(obj: object, seen: set[int], depth: int = 0) -> int:
                    "params.init_width": 1000.0}),
 ])
 def test_memory_estimate_counts_the_allocated_arrays(engine: Any, model: str, overrides: dict[str, Any]) -> None:
+    from tflock.bench import device_bytes
     from tflock.models import model_class
     from tflock.preflight import device_bytes_per_agent
 
     config = load_config(model=model, overrides={**overrides, "engine.precision": PRECISION})
     built = model_class(model)(config.params, config.seed, engine)
-    measured = _allocated_bytes(built, set()) / config.params.n
+    measured = device_bytes(built) / config.params.n
     assert 0.75 * measured <= device_bytes_per_agent(config) <= 1.3 * measured
 
 

@@ -9,18 +9,14 @@ engine settings.
 """
 
 import math
-import os
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from conftest import PRECISION
-from typer.testing import CliRunner
+from conftest import PRECISION, assert_one_error_line, invoke_in
 
 from tflock import simulation
-from tflock.cli import app
 from tflock.models import model_class
 from tflock.record import read_recording, verify_recording
 from tflock.simulation import NumericalFaultError, read_checkpoint
@@ -37,33 +33,15 @@ MODELS: dict[str, tuple[list[str], str, int | None, str]] = {
 }
 
 
-@pytest.fixture(autouse=True)
-def _restore_signal_handlers() -> Iterator[None]:
-    import signal
-
-    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for sig, handler in saved.items():
-        signal.signal(sig, handler)
-
-
 def sim(cwd: Path, *args: str) -> Any:
     """`tflock sim ARGS` in-process in `cwd`, at this session's precision (a resumed run has its checkpoint's)."""
-    old = os.getcwd()
-    os.chdir(cwd)
-    try:
-        return CliRunner().invoke(app, ["sim", *([] if "--resume" in args else ENGINE), *args])
-    finally:
-        os.chdir(old)
+    return invoke_in(cwd, ["sim", *([] if "--resume" in args else ENGINE), *args])
 
 
 def one_line_error(result: Any) -> str:
-    output = result.stdout + result.stderr
-    assert result.exit_code == 2, f"exit {result.exit_code} {result.exception!r}\n{output}"
-    assert "Traceback" not in output
-    lines = output.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: numerical fault"), output
-    return lines[0]
+    line = assert_one_error_line(result)
+    assert line.startswith("error: numerical fault"), line
+    return line
 
 
 def poison_at(monkeypatch: pytest.MonkeyPatch, model: str, step: int, agents: tuple[int, ...]) -> None:
