@@ -17,7 +17,9 @@ way (`tflock.peers.numba_vicsek`; its first call, JIT compile or cache load, is 
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import math
 import os
 import platform
 import resource
@@ -105,21 +107,23 @@ def case_config(case: BenchCase) -> dict[str, Any]:
             "log": {"max_agents": case.log_agents, "max_edges": 0, "every": 1, "metrics_every": 1}}
 
 
-def _device_bytes(obj: object, seen: set[int] | None = None, depth: int = 0) -> int:
-    """Bytes of the Taichi ndarrays an object holds (and the objects it holds, two levels down)."""
+def device_bytes(obj: object, seen: set[int] | None = None, depth: int = 0) -> int:
+    """Bytes of the Taichi ndarrays an object holds, alone or in lists (double buffers), and those of the objects
+    it holds, two levels down (a model's grid and metrics scratch)."""
     import taichi as ti
 
     itemsize = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8, ti.u32: 4, ti.u8: 1}
     seen = set() if seen is None else seen
     total = 0
     for value in vars(obj).values():
-        if id(value) in seen:
-            continue
-        seen.add(id(value))
-        if isinstance(value, ti.Ndarray):
-            total += int(np.prod(value.shape)) * itemsize.get(value.dtype, 8)
-        elif depth < 2 and hasattr(value, "__dict__") and not isinstance(value, type):
-            total += _device_bytes(value, seen, depth + 1)
+        for item in value if isinstance(value, (list, tuple)) else [value]:
+            if id(item) in seen:
+                continue
+            seen.add(id(item))
+            if isinstance(item, ti.Ndarray):
+                total += int(np.prod(item.shape)) * itemsize.get(item.dtype, 8)
+            elif depth < 2 and hasattr(item, "__dict__") and not isinstance(item, type):
+                total += device_bytes(item, seen, depth + 1)
     return total
 
 
@@ -169,16 +173,19 @@ def _time_numba_peer(state: dict[str, np.ndarray], params: Any, ms_tflock: float
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS) if threads > 0
                           else numba.config.NUMBA_NUM_THREADS)
     args = (state["x"], state["theta"], params.box, params.radius, params.speed, params.noise)
-    t0 = time.perf_counter()
-    vicsek_step(*args)  # JIT compile, or load from numba's cache
-    first_call_s = time.perf_counter() - t0
-    times: list[float] = []
-    while len(times) < 5 and sum(times) < 3e3:  # up to 5 steps, ~3 s
-        t0 = time.perf_counter()
-        vicsek_step(*args)
-        times.append(1e3 * (time.perf_counter() - t0))
-    ms = statistics.median(times)
+    first_call_s = _median_ms(lambda: vicsek_step(*args), 1) / 1e3  # JIT compile, or load from numba's cache
+    ms = _median_ms(lambda: vicsek_step(*args), 5, budget_ms=3e3)
     return {"numba_cells": {"ms": ms, "ratio": ms / ms_tflock, "first_call_s": first_call_s}}
+
+
+def _median_ms(step: Callable[[], object], repeats: int, budget_ms: float = math.inf) -> float:
+    """Median wall time of `step` in ms over up to `repeats` calls, stopping once `budget_ms` is spent."""
+    times: list[float] = []
+    while len(times) < repeats and sum(times) < budget_ms:
+        t0 = time.perf_counter()
+        step()
+        times.append(1e3 * (time.perf_counter() - t0))
+    return statistics.median(times)
 
 
 def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
@@ -193,25 +200,12 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
     params, n = model.params, len(theta)
     peers: dict[str, dict[str, float]] = {}
     if n <= 4000:  # O(N^2) memory and time: ~1 s at 4000
-        t0 = time.perf_counter()
-        reference.vicsek_step(x, theta, model.step_index, params, model.seed)
-        ms = 1e3 * (time.perf_counter() - t0)
+        ms = _median_ms(lambda: reference.vicsek_step(x, theta, model.step_index, params, model.seed), 1)
         peers["numpy_reference"] = {"ms": ms, "ratio": ms / ms_tflock}
-    try:
-        import scipy  # noqa: F401
-
-        has_scipy = True
-    except ImportError:
-        has_scipy = False
     expected_s = 2e-6 * n * max(1.0, mean_neighbors)  # ~2 us per neighbour pair on this class of machine
-    if has_scipy and expected_s < PEER_BUDGET_S:
+    if importlib.util.find_spec("scipy") is not None and expected_s < PEER_BUDGET_S:
         rng = np.random.default_rng(0)
-        times = []
-        for _ in range(3 if expected_s < 1 else 1):
-            t0 = time.perf_counter()
-            _ckdtree_vicsek_step(x, theta, params, rng)
-            times.append(1e3 * (time.perf_counter() - t0))
-        ms = statistics.median(times)
+        ms = _median_ms(lambda: _ckdtree_vicsek_step(x, theta, params, rng), 3 if expected_s < 1 else 1)
         peers["ckdtree_sparse"] = {"ms": ms, "ratio": ms / ms_tflock}
     peers.update(_time_numba_peer(state, params, ms_tflock, mean_neighbors, threads))
     return peers
@@ -253,7 +247,7 @@ def run_case(case: BenchCase) -> BenchResult:
         if case.log:
             result.logging_ms = _timed(lambda: sim.recorder.log_frame(
                 model.step_index, model.frame(sim._selected, 0)), ti.sync)
-        result.device_bytes_per_agent = _device_bytes(model) / case.n
+        result.device_bytes_per_agent = device_bytes(model) / case.n
         if case.peers:
             result.peers = _time_peers(model, result.ms_median, result.mean_neighbors, sim.engine.threads)
         sim.close()

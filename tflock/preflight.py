@@ -3,9 +3,9 @@
 The memory estimate counts, per agent, the arrays each model allocates (state, neighbour grid, graph metrics)
 and the larger of its host copies (the NumPy start-up draws, then the non-finite guard's copy of a good state)
 at the run's float size, and compares the total with the machine's physical memory. It is rough (the grid's bucket count
-varies with the box) but close: at f32 the default configs count 104 (vicsek), 100 (adaptive), 112 (potential)
+varies with the box) but close: at f32 the default configs count 104 (vicsek), 132 (adaptive), 144 (potential)
 and 144 (formation) device bytes per agent, and ``tests/test_bad_input.py`` checks the counts against the
-arrays the models really allocate.
+arrays the models really allocate (:func:`tflock.bench.device_bytes`).
 """
 
 import os
@@ -22,10 +22,11 @@ MAX_AGENTS = 2**31 - 1
 STARTUP_BYTES = 64
 
 
-def _grid(dim: int, graph: bool) -> tuple[float, float]:
-    """(floats, ints) per agent of a cell grid (sorted positions, cell coordinates, ~2 buckets per agent) and,
-    with ``graph``, the union-find arrays of the cluster metrics."""
-    return dim, 2 * dim + 8 + (3 if graph else 0)
+def _grid(dim: int, graph: bool, hashed: bool) -> tuple[float, float]:
+    """(floats, ints) per agent of a cell grid (sorted positions, cell coordinates, ~2 buckets per agent; a hashed
+    open-space grid has 2-4 buckets per agent, each with a count, a start and a shared-bucket flag) and, with
+    ``graph``, the union-find arrays of the cluster metrics."""
+    return dim, 2 * dim + 8 + (8 if hashed else 0) + (3 if graph else 0)
 
 
 def _vicsek(p: Any) -> tuple[float, float]:  # pos 2, theta, payload 3, turn; ids, updated; the ring of past states
@@ -53,7 +54,9 @@ def _bytes(config: Config, floats: float, ints: float) -> float:
 
 def device_bytes_per_agent(config: Config) -> float:
     """Bytes per agent of the Taichi arrays a run of ``config`` allocates: the model's, its grid's and metrics'."""
-    grid = _grid(getattr(config.params, "dim", 2), graph=config.model != "formation")  # formation: no clusters
+    p = config.params
+    hashed = config.model == "potential" or getattr(p, "boundary", None) == "open"  # potential is always open
+    grid = _grid(getattr(p, "dim", 2), graph=config.model != "formation", hashed=hashed)  # formation: no clusters
     return _bytes(config, *MODEL_ARRAYS[config.model](config.params)) + _bytes(config, *grid)
 
 
