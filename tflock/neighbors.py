@@ -267,8 +267,10 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
         for b in range(total_buckets):  # 1 when the bucket holds agents of more than one cell
             first = start[b]
             flag = 0
-            for k in range(first + 1, start[b + 1]):
-                flag |= 1 - same_cell(coords_sorted, k, load_cell(coords_sorted, first, dim), boundary, dim)
+            if first < start[b + 1]:
+                cell = load_cell(coords_sorted, first, dim)
+                for k in range(first + 1, start[b + 1]):
+                    flag |= 1 - same_cell(coords_sorted, k, cell, boundary, dim)
             mixed[b] = flag
 
 

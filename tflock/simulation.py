@@ -235,16 +235,18 @@ class Simulation:
     def _guard(self) -> None:
         """Check the state before anything of this step is kept: stop at a non-finite value, else now and then
         keep a copy of this good state."""
-        if self.model.first_non_finite() is not None:
-            self._fault()
+        found = self.model.first_non_finite()
+        if found is not None:
+            self._fault(found)
         self._checked = self.model.step_index
         if time.perf_counter() - self._good_at >= GOOD_COPY_RATIO * self._good_cost:
             self._keep_good()
 
-    def _fault(self) -> None:
+    def _fault(self, seen: tuple[int, str]) -> None:
         """Replay from the kept good state, checking every step after the last one that passed the guard, to the
-        first bad step; save the state before it, close the recording and raise NumericalFaultError."""
-        detected, seen = self.model.step_index, self.model.first_non_finite()
+        first bad step; save the state before it, close the recording and raise NumericalFaultError. `seen` is
+        what the guard found at the current step."""
+        detected = self.model.step_index
         arrays, start = self._good
         self.model.restore(arrays, start)
         self.model.advance(self._checked - start)
