@@ -217,9 +217,6 @@ class Formation(Experiment):
         """Fig. 7: mean tau over p and delta, as a map and as curves over p."""
         import matplotlib.pyplot as plt
 
-        def pct(x: float) -> str:
-            return "no configuration" if math.isnan(x) else f"{100 * x:.0f} %"
-
         tau = fig7.pivot_table(index="noise_deg", columns="fail_prob", values="tau_mean")
         figure, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
         image = left.imshow(tau.to_numpy(), origin="lower", aspect="auto", cmap="viridis")

@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from tflock.config import config_to_dict, load_config, tomllib
+from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
 
 N = 50
@@ -40,11 +41,6 @@ FLOOR = 1e-7  # f32 resolution of a heading near 2 pi; log plots are clipped the
 def expected_neighbours(radius: float) -> float:
     """Mean initial neighbour count of n uniform agents in the L x L box (no edge effects: periodic)."""
     return math.pi * radius**2 * (N - 1) / BOX**2
-
-
-def wrap_pi(angle: np.ndarray | float) -> np.ndarray:
-    """Angle(s) wrapped into [-pi, pi)."""
-    return (np.asarray(angle) + math.pi) % (2 * math.pi) - math.pi
 
 
 def initial_mean(config_toml: str) -> float:

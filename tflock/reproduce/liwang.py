@@ -107,11 +107,12 @@ class LiWang(Experiment):
     # ------------------------------------------------------------------ report
     def report(self, results: Results, quick: bool) -> Report:
         table = self._summary(results)
+        fits = self._tau_fits(table)
         figures = {"fig3-convergence": self._figure_vs_v0_alpha(table, "p", "convergence probability p"),
                    "fig4-largest-cluster": self._figure_vs_v0_alpha(table, "S", "largest cluster S"),
-                   "fig5-transient": self._figure_tau(table),
+                   "fig5-transient": self._figure_tau(table, fits),
                    "fig6-noise": self._figure_noise(table)}
-        return Report(figures, table, self._comparison(table))
+        return Report(figures, table, self._comparison(table, fits))
 
     @staticmethod
     def _summary(results: Results) -> pd.DataFrame:
@@ -173,7 +174,7 @@ class LiWang(Experiment):
             ax.legend(fontsize=7)
         return figure
 
-    def _figure_tau(self, table: pd.DataFrame) -> Any:
+    def _figure_tau(self, table: pd.DataFrame, fits: pd.DataFrame) -> Any:
         """tau against log2 alpha for v0 (a), density (b) and R (c), with eq. (10)'s line; beta and gamma of our
         fits against R (d)."""
         import matplotlib.pyplot as plt
@@ -193,7 +194,6 @@ class LiWang(Experiment):
             ax.set_ylabel("transient time tau (steps)")
             ax.set_title(title)
             ax.legend(fontsize=7)
-        fits = self._tau_fits(table)
         radius = fits[fits.figure == "5c-d"].sort_values("radius")
         fitting, poor = radius[radius.residual <= 1.0], radius[radius.residual > 1.0]
         ax = axes[1, 1]
@@ -278,8 +278,8 @@ class LiWang(Experiment):
         allowance = 2 * np.hypot(errors[1:], errors[:-1]) + 1 / replicas
         return bool(np.all(steps >= -allowance))
 
-    def _comparison(self, table: pd.DataFrame) -> str:
-        sections = [self._compare_convergence(table), self._compare_tau(table), self._compare_noise(table)]
+    def _comparison(self, table: pd.DataFrame, fits: pd.DataFrame) -> str:
+        sections = [self._compare_convergence(table), self._compare_tau(table, fits), self._compare_noise(table)]
         return "\n\n".join(section for section in sections if section)
 
     def _compare_convergence(self, table: pd.DataFrame) -> str:
@@ -343,8 +343,7 @@ class LiWang(Experiment):
             *self._checks(checks),
         ])
 
-    def _compare_tau(self, table: pd.DataFrame) -> str:
-        fits = self._tau_fits(table)
+    def _compare_tau(self, table: pd.DataFrame, fits: pd.DataFrame) -> str:
         if fits.empty:
             return ""
         lines = ["| panel | v0 | N | R | beta | gamma | largest residual | tau at alpha_max | unreached |",

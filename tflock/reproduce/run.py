@@ -12,6 +12,7 @@ import pandas as pd
 from tflock.config import ConfigError, config_to_toml, load_config
 from tflock.reproduce import experiment
 from tflock.reproduce.experiment import Results, Series
+from tflock.sweep.table import atomic_write
 
 #: a progress callback: (stage label, done, total)
 Progress = Callable[[str, int, int], None]
@@ -63,6 +64,9 @@ def reproduce(name: str, *, quick: bool = False, out: str | Path | None = None, 
         loaded += was_loaded
         computed += not was_loaded
         report(run_name, k + 1, len(runs))
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only: the figures are drawn without a display
     outcome = exp.report(results, quick)
     files = _write_report(exp, outcome, out, quick, time.perf_counter() - start, computed, loaded)
     return Reproduction(name, out, files, time.perf_counter() - start, computed, loaded)
@@ -88,17 +92,12 @@ def _series(name: str, config: dict, folder: Path) -> tuple[Series, bool]:
 def _atomic_csv(frame: pd.DataFrame, path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        frame.to_csv(tmp, index=False)
-        tmp.replace(path)
+        atomic_write(path, lambda tmp: frame.to_csv(tmp, index=False))
     except OSError as error:
         raise ConfigError(f"--out: cannot write {path}: {error.strerror or error}") from None
 
 
 def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed: int, loaded: int) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
 
 #: strategy number -> rule of the vicsek model (DESIGN.md 3.1)
@@ -83,7 +84,8 @@ class Samiloglu(Experiment):
                     row[metric] = group[f"final_{metric}"].mean()
                     row[f"{metric}_std"] = group[f"final_{metric}"].std(ddof=1) if len(group) > 1 else 0.0
                 # section VI: strategy 1 drifts toward pi; mean distance of the final mean heading from pi
-                row["heading_from_pi"] = float(np.mean(np.abs(_wrap(group["final_mean_heading"] - math.pi))))
+                gaps = wrap_pi(group["final_mean_heading"].to_numpy() - math.pi)
+                row["heading_from_pi"] = float(np.mean(np.abs(gaps)))
                 rows.append(row)
         table = pd.DataFrame(rows).sort_values(["boundary", "B", "strategy", "alpha_deg"], key=_boundary_first,
                                                ignore_index=True)
@@ -106,11 +108,6 @@ class Samiloglu(Experiment):
             figure.tight_layout()
             figures[stem] = figure
         return Report(figures, table, _comparison(table))
-
-
-def _wrap(angle: Any) -> Any:
-    """Into [-pi, pi)."""
-    return (np.asarray(angle) + math.pi) % (2 * math.pi) - math.pi
 
 
 def _boundary_first(column: pd.Series) -> pd.Series:

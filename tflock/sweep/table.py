@@ -36,7 +36,7 @@ def point_frame(point: Point, rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
 
 def write_point(path: Path, frame: pd.DataFrame) -> None:
     """Write a point's rows atomically."""
-    _atomic(path, lambda tmp: frame.to_parquet(tmp, index=False))
+    atomic_write(path, lambda tmp: frame.to_parquet(tmp, index=False))
 
 
 def read_point(path: Path) -> pd.DataFrame:
@@ -59,12 +59,13 @@ def assemble(frames: Iterable[pd.DataFrame], keys: Sequence[str]) -> pd.DataFram
 def write_table(table: pd.DataFrame, out: Path) -> list[Path]:
     """Write ``table.parquet`` and ``table.csv`` into ``out`` (each atomically); the paths written."""
     paths = [out / "table.parquet", out / "table.csv"]
-    _atomic(paths[0], lambda tmp: table.to_parquet(tmp, index=False))
-    _atomic(paths[1], lambda tmp: table.to_csv(tmp, index=False))
+    atomic_write(paths[0], lambda tmp: table.to_parquet(tmp, index=False))
+    atomic_write(paths[1], lambda tmp: table.to_csv(tmp, index=False))
     return paths
 
 
-def _atomic(path: Path, write: Any) -> None:
+def atomic_write(path: Path, write: Any) -> None:
+    """``write(tmp)`` to a temporary file beside `path`, then rename it to `path`: never a half-written file."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         write(tmp)
