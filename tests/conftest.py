@@ -1,7 +1,8 @@
 """Shared test setup: one Taichi initialisation per test process.
 
 In-process tests run at the precision named by TFLOCK_TEST_PRECISION (f64 by default, so oracle comparisons can
-run long horizons); `test_precision.py` reruns the oracle tests in a subprocess at f32. Anything that needs other
+run long horizons) and on the arch named by TFLOCK_TEST_ARCH (cpu by default; cuda or vulkan run the in-process
+tests on a GPU); `test_precision.py` reruns the oracle tests in a subprocess at f32. Anything that needs other
 engine settings (thread counts, the CLI) runs in a subprocess.
 """
 
@@ -15,22 +16,24 @@ import pytest
 from typer.testing import CliRunner
 
 PRECISION = os.environ.get("TFLOCK_TEST_PRECISION", "f64")
+ARCH = os.environ.get("TFLOCK_TEST_ARCH", "cpu")  # cuda / vulkan: the in-process tests on a GPU
 
 
 @pytest.fixture(scope="session")
 def engine():
     from tflock.engine import init_engine
 
-    return init_engine("cpu", 0, PRECISION)
+    return init_engine(ARCH, 0, PRECISION)
 
 
 @pytest.fixture
 def make_sim(engine):
-    """Simulation factory at the session's precision, recording off unless asked."""
+    """Simulation factory at the session's precision and arch, recording off unless asked."""
     from tflock import Simulation
 
     def make(**kwargs):
         kwargs.setdefault("engine", {})["precision"] = PRECISION
+        kwargs["engine"]["arch"] = ARCH
         return Simulation(**kwargs)
 
     return make

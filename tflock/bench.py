@@ -229,6 +229,7 @@ def run_case(case: BenchCase) -> BenchResult:
         result.first_step_s = _timed(lambda: model.advance(1), ti.sync) / 1e3
         if case.state == "developed":
             model.advance(case.develop_steps)
+            ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
         steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
@@ -277,10 +278,24 @@ def machine() -> dict[str, Any]:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gb": round(os.sysconf("SC_PAGE_SIZE")
+    info = {"cpu": cpu, "cores": os.cpu_count(), "memory_gb": round(os.sysconf("SC_PAGE_SIZE")
                                                                       * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
             "python": platform.python_version(), "numpy": np.__version__,
             "taichi": ".".join(map(str, ti.__version__)), "platform": platform.platform()}
+    gpus = _nvidia_gpus()
+    if gpus:
+        info["gpu"] = gpus
+    return info
+
+
+def _nvidia_gpus() -> list[str]:
+    """'name, driver, memory' of each NVIDIA GPU that nvidia-smi lists; empty without one."""
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total", "--format=csv,noheader"],
+                             capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [line.strip() for line in out.stdout.splitlines() if line.strip()] if out.returncode == 0 else []
 
 
 def cases(models: Iterable[str], sizes: Iterable[int], states: Iterable[str], **common: Any) -> list[BenchCase]:

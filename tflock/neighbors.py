@@ -1,9 +1,10 @@
 """Uniform cell grid for O(N) fixed-radius neighbour search (DESIGN.md section 2).
 
 Agents are counting-sorted by cell: atomic counts, an exclusive prefix sum written here (Taichi's
-``PrefixSumExecutor`` does not run on the CPU backend), a scatter, and an insertion sort of each cell's slice by
-agent index so that the order of neighbours, and hence every floating-point sum over them, does not depend on
-thread timing. A query visits the 3^d cells around an agent's cell.
+``PrefixSumExecutor`` does not run on the CPU backend), a scatter, and then each cell's slice is put in agent id
+order (an insertion sort on the CPU, ranks computed in parallel on a GPU) so that the order of neighbours, and
+hence every floating-point sum over them, does not depend on thread timing. A query visits the 3^d cells around
+an agent's cell.
 
 - periodic / reflecting box: cells of side >= R tile the box (at most ``4 n`` cells); periodic cell indices wrap,
   and a box with fewer than 3 cells per side visits each distinct cell once.
@@ -35,9 +36,11 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from tflock.engine import current_engine
 from tflock.space import OPEN, PERIODIC, boundary_code, displacement
 
 _HASH = (73856093, 19349663, 83492791)
+SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 
 
 @dataclass(frozen=True)
@@ -219,7 +222,7 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           mixed: ti.types.ndarray()):
+           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), by_rank: ti.template()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
@@ -233,27 +236,56 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
         b = bucket_of_cell(c, nc, n_buckets, boundary, dim)
         bucket[e] = b
         ti.atomic_add(counts[b], 1)
-    # exclusive scan, serial: a few ms for 1e6 buckets on the CPU
+    # exclusive scan of the counts into start[0 .. total_buckets], in blocks of SCAN_BLOCK buckets: block sums in
+    # parallel, a serial scan of the few block sums, then each block's scan in parallel (a serial scan of every
+    # bucket would run on one GPU thread)
+    for k in range(total_buckets // SCAN_BLOCK + 1):
+        total = 0
+        for b in range(k * SCAN_BLOCK, ti.min((k + 1) * SCAN_BLOCK, total_buckets)):
+            total += counts[b]
+        block_start[k] = total
     ti.loop_config(serialize=True)
-    for b in range(total_buckets + 1):
-        if b == 0:
-            start[0] = 0
-        else:
-            start[b] = start[b - 1] + counts[b - 1]
+    for k in range(total_buckets // SCAN_BLOCK + 1):
+        last = total_buckets // SCAN_BLOCK + 1  # the spare last element holds the running sum
+        if k == 0:
+            block_start[last] = 0
+        total = block_start[k]
+        block_start[k] = block_start[last]
+        block_start[last] += total
+    for k in range(total_buckets // SCAN_BLOCK + 1):
+        total = block_start[k]
+        for b in range(k * SCAN_BLOCK, ti.min((k + 1) * SCAN_BLOCK, total_buckets + 1)):
+            start[b] = total
+            if b < total_buckets:
+                total += counts[b]
     for b in range(total_buckets):
         counts[b] = start[b]  # reused as the scatter cursor
-    for e in range(n):
-        order[ti.atomic_add(counts[bucket[e]], 1)] = e
-    for b in range(total_buckets):  # insertion sort of each bucket by agent id: deterministic neighbour order
-        lo = start[b]
-        for k in range(lo + 1, start[b + 1]):
-            v = order[k]
-            key = ids[v]
-            m = k
-            while m > lo and ids[order[m - 1]] > key:
-                order[m] = order[m - 1]
-                m -= 1
-            order[m] = v
+    # within a bucket the scatter's order depends on thread timing; agents are then put in id order (a
+    # deterministic neighbour order)
+    if ti.static(by_rank):  # GPU: each agent's rank among its bucket's ids places it, all agents in parallel
+        for e in range(n):
+            slot_of[ti.atomic_add(counts[bucket[e]], 1)] = e  # scratch until the last loop
+        for s in range(n):
+            e = slot_of[s]
+            b = bucket[e]
+            key = ids[e]
+            rank = 0
+            for k in range(start[b], start[b + 1]):
+                rank += ti.select(ids[slot_of[k]] < key, 1, 0)
+            order[start[b] + rank] = e
+    else:  # CPU: insertion sort of each bucket, nearly sorted already when the state keeps the last cell order
+        for e in range(n):
+            order[ti.atomic_add(counts[bucket[e]], 1)] = e
+        for b in range(total_buckets):
+            lo = start[b]
+            for k in range(lo + 1, start[b + 1]):
+                v = order[k]
+                key = ids[v]
+                m = k
+                while m > lo and ids[order[m - 1]] > key:
+                    order[m] = order[m - 1]
+                    m -= 1
+                order[m] = v
     for s in range(n):
         e = order[s]
         a = ids[e]
@@ -286,7 +318,7 @@ class CellGrid:
     """
 
     def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type,
-                 replicas: int = 1) -> None:
+                 replicas: int = 1, rank_sort: bool | None = None) -> None:
         if n % replicas:
             raise ValueError(f"{n} agents do not split into {replicas} equal replicas")
         self.n = n
@@ -306,6 +338,11 @@ class CellGrid:
         self.coords_sorted = ti.ndarray(ti.i32, (dim + 1, n))
         # open space: 1 for a bucket that holds more than one cell (see span_agents); unused in a box
         self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
+        self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
+        # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
+        # the same grid, `rank_sort` picks one (default: by the engine's arch)
+        engine = current_engine()
+        self.rank_sort = (engine is not None and engine.arch != "cpu") if rank_sort is None else rank_sort
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
@@ -313,7 +350,7 @@ class CellGrid:
         _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed)
+               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.rank_sort)
 
 
 @ti.kernel

@@ -25,11 +25,11 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.frame import Frame, WorldSpec
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
 from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
-from tflock.record import Frame, WorldSpec
 from tflock.reference.adaptive import initial_draws
 from tflock.rng import Stream, replica_key, uniform_ti
 from tflock.space import OPEN, PERIODIC, boundary_code, displacement, wrap_periodic
@@ -96,8 +96,8 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: floa
         e = order[s]
         for a in ti.static(range(dim)):
             payload[a, s] = dirs[a, e]
-    r2 = radius * radius
     for s in range(n):
+        r2 = radius * radius
         i = id_sorted[s]
         p = load_vec(pos_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)

@@ -7,9 +7,9 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.frame import Frame, WorldSpec
 from tflock.guard import Guarded, first_non_finite
 from tflock.neighbors import SubsetDrawing
-from tflock.record import Frame, WorldSpec
 
 
 class Model(ABC):

@@ -48,6 +48,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.frame import Frame, Marker, WorldSpec
 from tflock.guard import Guarded, first_non_finite
 from tflock.metrics import BLOCK, n_blocks
 from tflock.models.base import Model
@@ -65,7 +66,6 @@ from tflock.models.formation_params import (
     FormationParams,
 )
 from tflock.neighbors import CellGrid, load_cell, load_vec, span_count, stencil_span
-from tflock.record import Frame, Marker, WorldSpec
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
 from tflock.space import PERIODIC, displacement, wrap_periodic, wrap_pi, wrap_two_pi
@@ -110,9 +110,9 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
         payload[0, s] = ti.cos(th)
         payload[1, s] = ti.sin(th)
     bad[0] = 0
-    va = ti.Vector([va_x, va_y])
-    va_next = ti.Vector([next_x, next_y])
     for s in range(n):
+        va = ti.Vector([va_x, va_y])
+        va_next = ti.Vector([next_x, next_y])
         i = id_sorted[s]
         e = order[s]
         p = load_vec(pos_sorted, s, 2)
@@ -217,8 +217,8 @@ def _quantifier_blocks(n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: floa
                        f: ti.types.ndarray(), rule: ti.types.ndarray(), partial: ti.types.ndarray()):
     """Per block of agents: sum cos Theta, sin Theta, distance to the VA, inside, aligned, speed, separation, and
     agents outside the desired formation (storage order: deterministic block sums)."""
-    va = ti.Vector([va_x, va_y])
     for blk in range(partial.shape[0]):
+        va = ti.Vector([va_x, va_y])
         acc = ti.Vector([0.0] * 8)
         for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
             p = load_vec(pos, e, 2)
@@ -243,8 +243,8 @@ def _tau_now(t: ti.i32, n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: flo
              f: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
     """tau = t if the desired formation holds now, else 'not reached' (-1)."""
     bad[0] = 0
-    va = ti.Vector([va_x, va_y])
     for e in range(n):
+        va = ti.Vector([va_x, va_y])
         if not df_holds(load_vec(pos, e, 2), f[THETA, e], f[SPEED, e], va, c):
             ti.atomic_add(bad[0], 1)
     tau[0] = ti.select(bad[0] == 0, t, -1)

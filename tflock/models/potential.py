@@ -30,12 +30,12 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
+from tflock.frame import Frame, WorldSpec
 from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
 from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
-from tflock.record import Frame, WorldSpec
 from tflock.space import OPEN
 
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents

@@ -32,6 +32,7 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
+from tflock.frame import Frame, WorldSpec, heading_colors
 from tflock.metrics import (
     EXACT_PAIRS_MAX,
     SAMPLED_PAIRS,
@@ -51,7 +52,6 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
-from tflock.record import Frame, WorldSpec, heading_colors
 from tflock.reference import wrap_pi as wrap_pi_np
 from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, replica_key, uniform_np, uniform_ti
 from tflock.space import (
@@ -97,11 +97,11 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
         payload[0, s] = ti.cos(th)
         payload[1, s] = ti.sin(th)
         payload[2, s] = th
-    r2 = radius * radius
-    # an agent is never further than (B - 1) v0 from where it was B - 1 steps ago (slack for rounding)
-    reach2 = ((radius + (bound - 1) * speed) * (1.0 + 1e-5)) ** 2
-    ring = bound + 1  # the ring holds B + 1 states: slot (t + 1) is written while the B views t-B+1..t are read
     for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
+        r2 = radius * radius
+        # an agent is never further than (B - 1) v0 from where it was B - 1 steps ago (slack for rounding)
+        reach2 = ((radius + (bound - 1) * speed) * (1.0 + 1e-5)) ** 2
+        ring = bound + 1  # the ring holds B + 1 states: slot (t + 1) is written while the B views t-B+1..t are read
         i = id_sorted[s]
         p = load_vec(pos_sorted, s, 2)
         c = load_cell(coords_sorted, s, 2)
