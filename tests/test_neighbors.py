@@ -112,11 +112,13 @@ def test_rank_sort_builds_the_same_grid(engine, boundary, replicas):
         element_ids = ti.ndarray(ti.i32, n)
         element_ids.from_numpy(ids)
         grid.build(pos, element_ids)
-        built.append({k: getattr(grid, k).to_numpy() for k in ("start", "order", "id_sorted", "slot_of",
-                                                                "pos_sorted", "coords_sorted", "mixed")})
+        arrays = {k: getattr(grid, k).to_numpy() for k in ("start", "order", "id_sorted", "pos_sorted",
+                                                             "coords_sorted", "mixed")}
+        built.append({**arrays, "slot_of": grid.slots().to_numpy()})
     insertion, ranked = built
     for key, value in insertion.items():
         assert np.array_equal(value, ranked[key]), key
+    assert np.array_equal(insertion["slot_of"][insertion["id_sorted"]], np.arange(n))
     start, id_sorted = insertion["start"], insertion["id_sorted"]
     assert np.diff(start).max() >= 20
     for b in np.flatnonzero(np.diff(start) > 1):

@@ -304,6 +304,6 @@ def replica_pairwise_errors(grid: CellGrid, pos: ti.Ndarray, theta: ti.Ndarray, 
     if per < 2:
         return np.zeros(grid.replicas), np.zeros(grid.replicas)
     partial = _scratch((grid.n, 2), pos.dtype)
-    _replica_pairs_exact(pos, theta, per, box, boundary, dim, grid.slot_of, grid.order, partial)
+    _replica_pairs_exact(pos, theta, per, box, boundary, dim, grid.slots(), grid.order, partial)
     sums = partial.to_numpy().astype(np.float64).reshape(grid.replicas, per, 2).sum(axis=1) / (per * (per - 1) / 2)
     return sums[:, 0], sums[:, 1]

@@ -291,7 +291,7 @@ class Adaptive(GridModel):
     def _sums(self) -> tuple[np.ndarray, np.ndarray, float, float]:
         """Mean d, mean c d, mean c and mean c |d| over all agents (deterministic block sums)."""
         p = self.params
-        _order_sums(p.n, BLOCK, self._alpha, self._tol, self._mode, p.dim, False, self.grid.slot_of,
+        _order_sums(p.n, BLOCK, self._alpha, self._tol, self._mode, p.dim, False, self.grid.slots(),
                     self.grid.order, self.dirs, self.phi, self.partial)
         total = self.partial.to_numpy().sum(axis=0) / p.n
         return total[: p.dim], total[p.dim: 2 * p.dim], float(total[-2]), float(total[-1])
@@ -307,7 +307,7 @@ class Adaptive(GridModel):
         """Phi_theta, Phi_v, C_alpha and mean speed of each replica of a batch."""
         p = self.params
         self._ensure_grid()
-        _order_sums(self.n_total, p.n, self._alpha, self._tol, self._mode, p.dim, True, self.grid.slot_of,
+        _order_sums(self.n_total, p.n, self._alpha, self._tol, self._mode, p.dim, True, self.grid.slots(),
                     self.grid.order, self.dirs, self.phi, self._replica_partial)
         means = self._replica_partial.to_numpy() / p.n
         return {"phi_theta": np.linalg.norm(means[:, : p.dim], axis=1),
@@ -348,7 +348,7 @@ class Adaptive(GridModel):
         m = len(selected)
         out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * p.dim))
         if m:
-            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.ids, self.grid.slot_of,
+            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.ids, self.grid.slots(),
                         self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, out)
         rows = out.to_numpy()[:m]
         spacing = p.box / p.n ** (1 / p.dim)
