@@ -118,7 +118,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
             acc_a = 0.0
             acc_b = 0.0
             count = 0.0
-            for o in ti.static(range(span_count(boundary, 2))):  # unrolled: 6 spans in 2D, folded to constants
+            for o in range(ti.static(span_count(boundary, 2))):
                 lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, 2)
                 begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, 2)
                 for k in range(begin, end):
