@@ -27,6 +27,10 @@ Models loop over neighbours themselves, with the helpers below, inside their own
             for k in range(begin, end):
                 if check:   # open space, a bucket shared by several cells: is k really in `cell`?
                     same = same_cell(coords_sorted, k, cell, boundary, dim)
+
+Kernels compute loop-invariant values inside their parallel loops (the compiler hoists them), never between two
+top-level loops: Taichi's CUDA backend keeps such values in a global buffer and stored them misaligned at f64
+(CUDA_ERROR_MISALIGNED_ADDRESS).
 """
 
 
@@ -356,7 +360,7 @@ class CellGrid:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.
 
         Only metrics and drawn frames look agents up by id; filling it in every build would scatter one write
-        per agent over the whole array (~10 % of a build at N = 1e6).
+        per agent over the whole array (about 10 of a build's 35 ms at N = 1e6 on the CPU).
         """
         if not self._slots_fresh:
             _fill_slots(self.n, self.id_sorted, self.slot_of)

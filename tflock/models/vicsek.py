@@ -268,7 +268,7 @@ class Vicsek(GridModel):
         self.payload = ti.ndarray(ftype, (3, n))  # cos, sin, theta in cell order
         # |heading change| at the last step, and 1 where the agent updated; like pos and theta in the arrangement's
         # order (element s holds agent ids[s]): written at the agent's slot, not at its id, which would scatter
-        # two writes per agent over the whole array (~30 % of a step at N = 1e6)
+        # two writes per agent over the whole array (with grid.slots(): 1e6 after 300 steps, 380-430 -> 310-340 ms)
         self.turn = ti.ndarray(ftype, n)
         self.updated = ti.ndarray(ti.i32, n)
         ring, m = (bound + 1, n) if self.asynchronous else (1, 1)  # unused 1-element arrays when synchronous
