@@ -261,9 +261,9 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
         for b in range(k * SCAN_BLOCK, ti.min((k + 1) * SCAN_BLOCK, total_buckets + 1)):
             start[b] = total
             if b < total_buckets:
-                total += counts[b]
-    for b in range(total_buckets):
-        counts[b] = start[b]  # reused as the scatter cursor
+                count = counts[b]
+                counts[b] = total  # from here on the bucket's scatter cursor
+                total += count
     # within a bucket the scatter's order depends on thread timing; agents are then put in id order (a
     # deterministic neighbour order)
     if ti.static(by_rank):  # GPU: each agent's rank among its bucket's ids places it, all agents in parallel

@@ -372,6 +372,7 @@ class Vicsek(GridModel):
         out.update(self.graph.compute_replicas(p.radius, p.box))
         pairs = replica_pairwise_errors(self.grid, self.pos, self.theta, p.box, boundary_code(p.boundary), 2)
         out.update(zip(self._pair_names, pairs, strict=True))
+        # turn and updated are in the arrangement's order, the last grid's slots: replica-major, as the grid's buckets
         out["de_theta"] = self.turn.to_numpy().astype(np.float64).reshape(replicas, n).mean(axis=1)
         out["updated"] = self.updated.to_numpy().reshape(replicas, n).mean(axis=1)
         if p.leader.enabled:
