@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import taichi as ti
+from conftest import ARCH
 
 from tflock import reference as ref
 from tflock.config import load_config
@@ -123,3 +124,44 @@ def test_rank_sort_builds_the_same_grid(engine, boundary, replicas):
     assert np.diff(start).max() >= 20
     for b in np.flatnonzero(np.diff(start) > 1):
         assert np.all(np.diff(id_sorted[start[b]:start[b + 1]]) > 0)
+
+
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise kernel is the CPU's")
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting"])
+@pytest.mark.parametrize("box,radius", [(10.0, 1.0), (10.0, 4.0), (10.0, 6.0), (3.0, 1.0), (50.0, 0.7)])
+def test_lane_wise_sums_match_brute_force(engine, boundary, box, radius):
+    """The CPU's lane-wise Vicsek kernel (runs of cells, LANES agents at a time) counts and sums exactly the
+    brute-force neighbours, itself included: sparse cells merged into runs, crowded cells of several lane blocks,
+    periodic edges and boxes of fewer than 3 cells per side. The runs cover every occupied cell once."""
+    from tflock.models.vicsek import RULES, _headings, _neighbour_sums
+    from tflock.neighbors import LANES
+
+    rng = np.random.default_rng(int(box * 10 + radius))
+    x = np.concatenate([rng.random((300, 2)) * box, box / 3 + rng.random((60, 2)) * 0.4])  # a clump: crowded cells
+    theta = rng.random(len(x)) * 2 * np.pi
+    model = model_at(engine, x, boundary, box, radius)
+    model.set_state({"x": x, "theta": theta}, 0)
+    assert model.lane_wise
+    model._ensure_grid()
+    grid, g = model.grid, model.grid.geometry
+    nc = g.cells_per_side
+    counts = np.diff(grid.start.to_numpy()).reshape(nc, nc)
+    run_end = grid.runs().to_numpy().reshape(nc, nc)
+    covered = np.zeros_like(counts)
+    for y, x0 in zip(*np.nonzero(run_end >= 0), strict=True):
+        x1 = run_end[y, x0]
+        assert x0 < x1 <= nc and counts[y, x0] > 0
+        assert counts[y, x0:x1].sum() <= LANES or x1 == x0 + 1
+        covered[y, x0:x1] += 1
+    assert np.array_equal(covered[counts > 0], np.ones((counts > 0).sum())) and covered.max() == 1
+    _headings(model.n_total, grid.order, model.theta, model.trig, model.payload)
+    _neighbour_sums(g.total_buckets, nc, radius, box, RULES["average"], g.boundary, grid.start, grid.runs(),
+                    grid.pos_sorted, model.payload, model.sums)
+    ids = grid.id_sorted.to_numpy()
+    sums = np.empty((3, len(x)))
+    sums[:, ids] = model.sums.to_numpy()
+    adjacency = ref.adjacency(x.astype(engine.real), radius, boundary, box)
+    np.fill_diagonal(adjacency, True)
+    assert np.array_equal(sums[2], adjacency.sum(axis=1))
+    rtol = 1e-5 if engine.real == np.float32 else 1e-12
+    assert np.allclose(sums[0], adjacency @ theta.astype(engine.real), rtol=rtol)

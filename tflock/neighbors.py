@@ -45,6 +45,8 @@ from tflock.space import OPEN, PERIODIC, boundary_code, displacement
 
 _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
+#: agents a lane-wise CPU kernel treats together: one AVX2 register of float32 (see :meth:`CellGrid.runs`)
+LANES = 8
 
 
 @dataclass(frozen=True)
@@ -308,6 +310,102 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
             mixed[b] = flag
 
 
+@ti.kernel
+def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
+    """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`): one pass along each
+    row, a cell joining the open run while the agents fit in the lanes."""
+    for row in range(rows):
+        base = row * nc
+        first_row = row - row % nc  # row 0 of this row's replica
+        begin = -1  # first cell of the open run (-1: none)
+        agents = 0
+        below = start[base]
+        for x in range(nc):
+            above = start[base + x + 1]
+            here = above - below
+            below = above
+            join = begin >= 0 and agents + here <= LANES
+            if join and here == 0:  # an empty cell widens the window by column x + 1: only if that is sparse
+                column = 0
+                if x + 1 < nc:
+                    for r in ti.static(range(3)):
+                        y = first_row + (row - first_row + r - 1 + nc) % nc
+                        column += start[y * nc + x + 2] - start[y * nc + x + 1]
+                join = column <= LANES
+            run_end[base + x] = -1
+            if join:
+                agents += here
+            else:
+                if begin >= 0:
+                    run_end[base + begin] = x
+                begin = ti.select(here > 0, x, -1)
+                agents = here
+        if begin >= 0:
+            run_end[base + begin] = nc
+
+
+@ti.func
+def run_spans(row, x0, x1, r, nc, start: ti.template(), boundary: ti.template()):
+    """Row r (0, 1, 2 for y - 1, y, y + 1) of the stencil of the run of cells [x0, x1) in grid row `row` of a box
+    grid: at most two spans of sorted agents [b0, e0), [b1, e1) (empty ones have b == e).
+
+    The cells x0 - 1 .. x1 of a row are contiguous; a periodic row wraps into a second span at an edge and is
+    visited once whole when the window covers it; a box with fewer than 3 rows visits each distinct row once, as
+    :func:`stencil_span` does. A reflecting box skips rows outside and clips the window.
+    """
+    y = row % nc
+    t = y + r - 1
+    ok = True
+    if ti.static(boundary == PERIODIC):
+        if nc < 3 and (r - 1 < 0 or r - 1 >= nc):
+            ok = False
+        t = (t + nc) % nc
+    elif t < 0 or t >= nc:
+        ok = False
+    base = (row - y + t) * nc
+    lo = x0 - 1
+    hi = x1 + 1
+    b0 = 0
+    e0 = 0
+    b1 = 0
+    e1 = 0
+    if ok:
+        if ti.static(boundary == PERIODIC):
+            if hi - lo >= nc:
+                b0, e0 = start[base], start[base + nc]
+            elif lo < 0:
+                b0, e0 = start[base], start[base + hi]
+                b1, e1 = start[base + nc - 1], start[base + nc]
+            elif hi > nc:
+                b0, e0 = start[base + lo], start[base + nc]
+                b1, e1 = start[base], start[base + hi - nc]
+            else:
+                b0, e0 = start[base + lo], start[base + hi]
+        else:
+            b0, e0 = start[base + ti.max(lo, 0)], start[base + ti.min(hi, nc)]
+    return b0, e0, b1, e1
+
+
+@ti.func
+def run_wraps(row, x0, x1, nc, boundary: ti.template()):
+    """Whether the stencil of a run crosses a periodic edge. If not, the plain difference of two positions in it
+    is already the minimum image: the run's window spans at most nc - 1 cells, so two agents in it are less than
+    box - R apart along each axis, and a pair the direct difference puts further than R apart is as far through
+    the boundary."""
+    wraps = False
+    if ti.static(boundary == PERIODIC):
+        y = row % nc
+        wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
+    return wraps
+
+
+@ti.func
+def lanes(arr: ti.template(), row: ti.template(), i0, last, width: ti.template()):
+    """Elements i0 .. i0 + width - 1 of row `row` of a component-major ndarray as a vector, indices clamped to
+    `last` (lanes past it repeat the last element: compute with them, but do not store their results)."""
+    return ti.Vector([arr[row, ti.min(i0 + k, last)] for k in ti.static(range(width))])
+
+
 class CellGrid:
     """Cell-sorted view of n agents' positions, rebuilt with :meth:`build` whenever positions change.
 
@@ -342,6 +440,8 @@ class CellGrid:
         # open space: 1 for a bucket that holds more than one cell (see span_agents); unused in a box
         self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
         self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
+        self.run_end = ti.ndarray(ti.i32, g.total_buckets if g.boundary != OPEN else 1)  # see runs()
+        self._runs_fresh = False
         # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
@@ -355,6 +455,7 @@ class CellGrid:
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
                self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.rank_sort)
         self._slots_fresh = False
+        self._runs_fresh = False
 
     def slots(self) -> ti.Ndarray:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.
@@ -366,6 +467,25 @@ class CellGrid:
             _fill_slots(self.n, self.id_sorted, self.slot_of)
             self._slots_fresh = True
         return self.slot_of
+
+
+    def runs(self) -> ti.Ndarray:
+        """Runs of cells for lane-wise kernels (box grids), computed on first use after a build.
+
+        Each row is cut into runs of consecutive non-empty cells holding at most ``LANES`` agents together (a
+        fuller cell is a run of its own); ``run_end[b]`` is one past the last cell of the run that starts at bucket
+        b (as a column in b's row), -1 where no run starts. A kernel takes a run's agents ``LANES`` at a time and
+        visits the run's 3 x (width + 2) cells once for all of them: in a sparse swarm (2 agents a cell) a run of
+        ~4 cells fills the lanes, which visits half the candidates per agent that cell-by-cell lanes would. An
+        empty cell joins a run only if the column it adds to the window is sparse.
+        """
+        g = self.geometry
+        if g.boundary == OPEN:
+            raise ValueError("runs need a box grid (open space hashes its cells)")
+        if not self._runs_fresh:
+            _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_end)
+            self._runs_fresh = True
+        return self.run_end
 
 
 @ti.kernel

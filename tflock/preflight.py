@@ -29,9 +29,12 @@ def _grid(dim: int, graph: bool, hashed: bool) -> tuple[float, float]:
     return dim, 2 * dim + 8 + (8 if hashed else 0) + (3 if graph else 0)
 
 
-def _vicsek(p: Any) -> tuple[float, float]:  # pos 2, theta, payload 3, turn; ids, updated; the ring of past states
+def _vicsek(p: Any) -> tuple[float, float]:
+    """pos 2, theta, payload 3, turn (+ neighbour sums 3 and cos/sin 2 for the synchronous step in a box, which
+    the CPU runs lane-wise); ids, updated; the ring of past states."""
     ring = p.async_bound + 1 if p.async_bound > 1 else 0
-    return 7 + 3 * ring, 2 + (1 if ring else 0)
+    lane_wise = 5 if not ring and p.boundary != "open" else 0
+    return 7 + lane_wise + 3 * ring, 2 + (1 if ring else 0)
 
 
 def _potential(p: Any) -> tuple[float, float]:  # pos, vel, scratch (+ pos_next), energy, nearest; ids, where,

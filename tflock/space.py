@@ -33,12 +33,10 @@ def displacement(p, q, box, boundary: ti.template()):
 
 @ti.func
 def wrap_periodic(p, box):
-    """Coordinates into [0, box) (x == box would put an agent outside the cell grid)."""
+    """Coordinates into [0, box) (x == box would put an agent outside the cell grid); element-wise, so it takes
+    a position or a vector of one coordinate of several agents."""
     p -= box * ti.floor(p / box)
-    for k in ti.static(range(p.n)):
-        if p[k] >= box or p[k] < 0:
-            p[k] = 0.0
-    return p
+    return ti.select((p >= box) | (p < 0), 0.0, p)
 
 
 @ti.func
@@ -46,17 +44,11 @@ def reflect(p, box):
     """Mirror coordinates at the walls 0 and box; returns the position and a per-axis 0/1 flip mask.
 
     A flipped axis means the velocity component along it changes sign (reflection like light on a mirror,
-    Samiloglu et al. 2006 section 5.2). Valid for moves shorter than the box.
+    Samiloglu et al. 2006 section 5.2). Valid for moves shorter than the box. Element-wise, like
+    :func:`wrap_periodic`.
     """
-    flips = ti.Vector([0] * p.n, dt=ti.i32)
-    for k in ti.static(range(p.n)):
-        if p[k] < 0:
-            p[k] = -p[k]
-            flips[k] = 1
-        elif p[k] > box:
-            p[k] = 2 * box - p[k]
-            flips[k] = 1
-    return p, flips
+    flips = ti.cast((p < 0) | (p > box), ti.i32)
+    return ti.select(p < 0, -p, ti.select(p > box, 2 * box - p, p)), flips
 
 
 TWO_PI = 2 * math.pi
@@ -64,14 +56,12 @@ TWO_PI = 2 * math.pi
 
 @ti.func
 def wrap_pi(a):
-    """Angle into [-pi, pi)."""
+    """Angle into [-pi, pi) (element-wise on vectors)."""
     return a - TWO_PI * ti.floor((a + math.pi) / TWO_PI)
 
 
 @ti.func
 def wrap_two_pi(a):
-    """Angle into [0, 2 pi) (headings, as 003 defines them)."""
+    """Angle into [0, 2 pi) (headings, as 003 defines them); branch-free and element-wise on vectors."""
     a -= TWO_PI * ti.floor(a / TWO_PI)
-    if a >= TWO_PI or a < 0:
-        a = 0.0
-    return a
+    return ti.select((a >= TWO_PI) | (a < 0), 0.0, a)

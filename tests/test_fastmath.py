@@ -1,0 +1,96 @@
+"""The branch-free polynomial sin/cos/atan2 of tflock.fastmath against NumPy's float64 functions.
+
+The lane-wise Vicsek step uses them instead of the C library's, so their error enters every heading; the bounds
+below are a few units in the last place of the session's precision (the oracle tests then bound whole steps).
+"""
+
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+from conftest import ARCH, PRECISION
+
+from tflock.fastmath import atan2, sin_cos
+
+F64 = PRECISION == "f64"
+REAL = np.float64 if F64 else np.float32
+ULP = np.finfo(REAL).eps  # spacing at 1
+
+
+@ti.kernel
+def _evaluate(x: ti.types.ndarray(), y: ti.types.ndarray(), out: ti.types.ndarray()):
+    for i in range(x.shape[0]):
+        s, c = sin_cos(x[i])
+        out[0, i] = s
+        out[1, i] = c
+        out[2, i] = atan2(y[i], x[i])
+
+
+@ti.kernel
+def _evaluate_lanes(x: ti.types.ndarray(), y: ti.types.ndarray(), out: ti.types.ndarray()):
+    for b in range(x.shape[0] // 8):
+        vx = ti.Vector([x[8 * b + k] for k in ti.static(range(8))])
+        vy = ti.Vector([y[8 * b + k] for k in ti.static(range(8))])
+        s, c = sin_cos(vx)
+        a = atan2(vy, vx)
+        for k in ti.static(range(8)):
+            out[0, 8 * b + k] = s[k]
+            out[1, 8 * b + k] = c[k]
+            out[2, 8 * b + k] = a[k]
+
+
+def _inputs() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    specials = np.array([0.0, math.pi / 4, math.pi / 2, math.pi, 1.5 * math.pi, 2 * math.pi, -math.pi, 1e-9, -1e-9,
+                         np.nextafter(2 * math.pi, 0)])
+    x = np.concatenate([rng.uniform(-7.0, 14.0, 200_000), rng.uniform(-1e-3, 1e-3, 20_000), specials, -specials])
+    y = rng.uniform(-3.0, 3.0, len(x))
+    y[:40] = np.array([0.0, 1.0, -1.0, 2.0, -0.5] * 8)  # on the axes and diagonals of atan2's octants
+    x[:40] = np.array([1.0, 0.0, 0.0, 2.0, 0.5, -1.0, 1.0, -1.0, -2.0, 0.5] * 4)
+    n = len(x) // 8 * 8
+    return x[:n].astype(REAL), y[:n].astype(REAL)
+
+
+@pytest.mark.parametrize("evaluate", [_evaluate, _evaluate_lanes], ids=["scalar", "lanes"])
+def test_polynomials_match_numpy(engine, evaluate):
+    x, y = _inputs()
+    out = np.zeros((3, len(x)), dtype=REAL)
+    evaluate(x, y, out)
+    xs, ys = x.astype(np.float64), y.astype(np.float64)
+    bound = 8 * ULP if F64 else 4 * ULP
+    assert np.abs(out[0] - np.sin(xs)).max() < bound
+    assert np.abs(out[1] - np.cos(xs)).max() < bound
+    heading = (xs >= 0) & (xs < 2 * math.pi)  # the step's headings (f32: the C library's float32 sine errs by 0.6)
+    assert np.abs(out[:2, heading] - np.stack([np.sin(xs), np.cos(xs)])[:, heading]).max() < (8 if F64 else 2) * ULP
+    assert np.abs(out[2] - np.arctan2(ys, xs)).max() < 8 * ULP
+    assert np.all(np.abs(out[:2]) <= 1.0)
+
+
+def test_scalar_and_lanes_agree_bit_for_bit(engine):
+    """The vectorised lanes compute exactly what the scalar code does (the step and set_state's cos/sin agree)."""
+    x, y = _inputs()
+    a = np.zeros((3, len(x)), dtype=REAL)
+    b = np.zeros((3, len(x)), dtype=REAL)
+    _evaluate(x, y, a)
+    _evaluate_lanes(x, y, b)
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.skipif(ARCH != "cpu", reason="GPU arches run the general kernel, which keeps no cos/sin")
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting"])
+def test_step_keeps_cos_sin_of_the_headings(engine, boundary):
+    """The lane-wise Vicsek step stores cos/sin of each new heading for the next step (reflecting walls turn the
+    heading after the move); they equal what set_state computes from the headings, bit for bit, so a state set
+    from outside continues exactly as one the step wrote."""
+    from tflock.config import load_config
+    from tflock.models.vicsek import Vicsek, _trig
+
+    cfg = load_config(overrides={"params.n": 2000, "params.box": 10.0, "params.speed": 0.4,
+                                 "params.boundary": boundary, "engine.precision": PRECISION})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    assert model.lane_wise
+    model.advance(30)
+    kept = model.trig.to_numpy().copy()
+    _trig(model.n_total, model.theta, model.trig)
+    assert np.array_equal(kept, model.trig.to_numpy())
