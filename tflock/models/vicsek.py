@@ -231,16 +231,13 @@ def _trig(n: ti.i32, theta: ti.types.ndarray(), trig: ti.types.ndarray()):
 def _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box, pos_sorted: ti.template(),
                 payload: ti.template(), rule: ti.template(), minimum_image: ti.template()):
     """Add the candidates [begin, end) within R of each lane's agent (itself included) to its sums."""
-    half = 0.5 * box
+    metric = ti.static(PERIODIC if minimum_image else REFLECTING)  # REFLECTING: the plain difference
     for k in range(begin, end):
         xk = pos_sorted[0, k]
         if xk > 2 * box:  # never (positions lie in the box); an exit LLVM's loop vectoriser cannot handle keeps it
             break  # off this loop: it vectorised across k as well for spans over 32 (64 vectors of lane sums)
-        dx = xk - px
-        dy = pos_sorted[1, k] - py
-        if ti.static(minimum_image):
-            dx = ti.select(dx > half, dx - box, ti.select(dx < -half, dx + box, dx))
-            dy = ti.select(dy > half, dy - box, ti.select(dy < -half, dy + box, dy))
+        dx = displacement(px, xk, box, metric)
+        dy = displacement(py, pos_sorted[1, k], box, metric)
         near = dx * dx + dy * dy <= r2
         if ti.static(rule == VECTOR):
             acc_a += ti.select(near, payload[0, k], 0.0)
