@@ -468,16 +468,15 @@ class CellGrid:
             self._slots_fresh = True
         return self.slot_of
 
-
     def runs(self) -> ti.Ndarray:
         """Runs of cells for lane-wise kernels (box grids), computed on first use after a build.
 
-        Each row is cut into runs of consecutive non-empty cells holding at most ``LANES`` agents together (a
-        fuller cell is a run of its own); ``run_end[b]`` is one past the last cell of the run that starts at bucket
-        b (as a column in b's row), -1 where no run starts. A kernel takes a run's agents ``LANES`` at a time and
-        visits the run's 3 x (width + 2) cells once for all of them: in a sparse swarm (2 agents a cell) a run of
-        ~4 cells fills the lanes, which visits half the candidates per agent that cell-by-cell lanes would. An
-        empty cell joins a run only if the column it adds to the window is sparse.
+        Each row is cut into runs of consecutive cells that start at an occupied cell and hold at most ``LANES``
+        agents together (a fuller cell is a run of its own); ``run_end[b]`` is one past the last cell of the run
+        that starts at bucket b (as a column in b's row), -1 where no run starts. A kernel takes a run's agents
+        ``LANES`` at a time and visits the run's 3 x (width + 2) cells once for all of them: in a sparse swarm (2
+        agents a cell) a run of ~4 cells fills the lanes, which visits half the candidates per agent that
+        cell-by-cell lanes would. An empty cell joins a run only if the column it adds to the window is sparse.
         """
         g = self.geometry
         if g.boundary == OPEN:
@@ -494,8 +493,20 @@ def _fill_slots(n: ti.i32, id_sorted: ti.types.ndarray(), slot_of: ti.types.ndar
         slot_of[id_sorted[s]] = s
 
 
+@ti.func
+def drawn_rank(i, bits: ti.template(), word_rank: ti.template()):
+    """Row of agent i in a frame (its rank among the drawn agents, which are taken in id order), or -1 when it is
+    not drawn; from :class:`SubsetDrawing`'s ``bits`` and ``word_rank``."""
+    w = bits[i >> 5]
+    b = ti.cast(i & 31, ti.u32)
+    rank = -1
+    if (w >> b) & ti.u32(1):
+        rank = word_rank[i >> 5] + ti.cast(ti.math.popcnt(w & ((ti.u32(1) << b) - ti.u32(1))), ti.i32)
+    return rank
+
+
 @ti.kernel
-def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.ndarray(),
+def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
            radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
            boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
            id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
@@ -516,7 +527,7 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.n
             for k in range(begin, end):
                 j = id_sorted[k]
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                keep = d.norm_sqr() <= radius * radius and k != s and (selected[j] == 0 or j > i)
+                keep = d.norm_sqr() <= radius * radius and k != s and (drawn_rank(j, bits, word_rank) < 0 or j > i)
                 if keep and (check == 0 or same_cell(coords_sorted, k, cell, boundary, dim) == 1):
                     if ti.static(fill):
                         if e < limit:
@@ -528,22 +539,11 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), selected: ti.types.n
             counts[m] = e
 
 
-@ti.func
-def drawn_rank(i, bits: ti.template(), word_rank: ti.template()):
-    """Row of agent i in a frame (its rank among the drawn agents, which are taken in id order), or -1 when it is
-    not drawn; from :class:`SubsetDrawing`'s ``bits`` and ``word_rank``."""
-    w = bits[i >> 5]
-    b = ti.cast(i & 31, ti.u32)
-    rank = -1
-    if (w >> b) & ti.u32(1):
-        rank = word_rank[i >> 5] + ti.cast(ti.math.popcnt(w & ((ti.u32(1) << b) - ti.u32(1))), ti.i32)
-    return rank
-
-
 class SubsetDrawing:
-    """Fixed subset of agents drawn every frame: their neighbour edges, built on the device.
+    """Fixed subset of agents drawn every frame: their membership and frame rows (``bits``, ``word_rank``, see
+    :func:`drawn_rank`) and their neighbour edges, built on the device.
 
-    Index arrays are uploaded once; each call launches two small kernels over the subset only.
+    Index arrays are uploaded once; each edges call launches two small kernels over the subset only.
     """
 
     def __init__(self, grid: CellGrid, selected_ids: np.ndarray) -> None:
@@ -551,7 +551,6 @@ class SubsetDrawing:
         self.selected_ids = np.asarray(selected_ids, dtype=np.int32)
         m = max(1, len(self.selected_ids))
         self.ids = ti.ndarray(ti.i32, m)
-        self.mask = ti.ndarray(ti.i32, grid.n)
         self.counts = ti.ndarray(ti.i32, m)
         self.offsets = ti.ndarray(ti.i32, m)
         # membership as one bit per agent (it stays in cache during a pass over all agents) and, per 32-agent word,
@@ -562,9 +561,6 @@ class SubsetDrawing:
         self._rows: ti.Ndarray | None = None
         if len(self.selected_ids):
             self.ids.from_numpy(np.pad(self.selected_ids, (0, m - len(self.selected_ids))))
-            mask = np.zeros(grid.n, dtype=np.int32)
-            mask[self.selected_ids] = 1
-            self.mask.from_numpy(mask)
             word = self.selected_ids >> 5
             bits = np.zeros(words, dtype=np.uint32)
             np.bitwise_or.at(bits, word, np.left_shift(np.uint32(1), (self.selected_ids & 31).astype(np.uint32)))
@@ -589,7 +585,7 @@ class SubsetDrawing:
         n_sel = len(self.selected_ids)
         if n_sel == 0 or max_edges == 0:
             return np.zeros((0, 2, g.dim), dtype=self.grid.real)
-        args = (n_sel, self.ids, self.mask, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
+        args = (n_sel, self.ids, self.bits, self.word_rank, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
                 g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.slots(), self.grid.pos_sorted,
                 self.grid.coords_sorted)
         _pairs(*args, self.counts, self.offsets, 0, False, self.offsets)
