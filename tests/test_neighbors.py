@@ -165,3 +165,44 @@ def test_lane_wise_sums_match_brute_force(engine, boundary, box, radius):
     assert np.array_equal(sums[2], adjacency.sum(axis=1))
     rtol = 1e-5 if engine.real == np.float32 else 1e-12
     assert np.allclose(sums[0], adjacency @ theta.astype(engine.real), rtol=rtol)
+
+
+def bounded_grid_degrees(engine, x, radius):
+    """A bounded open-space grid on positions x (n, dim): its layout and each agent's brute-force-comparable
+    degree (agent order) from the R-graph kernel."""
+    from tflock.metrics import NeighbourGraph
+
+    n, dim = x.shape
+    grid = CellGrid(n, dim, "open", 1.0, radius, engine.real, bounded=True)
+    pos = ti.ndarray(ti.f32 if engine.real == np.float32 else ti.f64, (dim, n))
+    pos.from_numpy(np.ascontiguousarray(x.T, dtype=engine.real))
+    ids = ti.ndarray(ti.i32, n)
+    ids.from_numpy(np.arange(n, dtype=np.int32))
+    grid.build(pos, ids)
+    graph = NeighbourGraph(grid)
+    graph.compute(radius, 1.0)
+    return grid.geometry, graph.degree.to_numpy()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("radius", [0.7, 2.0])
+def test_bounded_layout_matches_brute_force(engine, dim, radius):
+    """A compact open-space swarm is re-binned over its bounding box (cells of side R from its lower corner, a
+    row-major block like a box's); one far straggler makes that block too large, and the build falls back to the
+    hash. Both find exactly the brute-force neighbours, agents on the box's faces included."""
+    from tflock.neighbors import BOUNDED, OPEN
+
+    rng = np.random.default_rng(dim * 10 + int(radius * 10))
+    side = 9.0 if dim == 2 else 5.0  # the cube of cells fits in the table's 1024 buckets
+    x = rng.random((400, dim)) * side - 20.0  # negative coordinates: the origin is the lower corner, not 0
+    x[:10, 0] = x[:10, 0].min()  # agents on the lower and upper faces
+    x[10:20, 1] = x[10:20, 1].max()
+    geometry, degree = bounded_grid_degrees(engine, x, radius)
+    extent = float((x.max(axis=0) - x.min(axis=0)).max())
+    assert geometry.boundary == BOUNDED and geometry.cells_per_side == int(extent / radius) + 1
+    assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "open", 1.0).sum(axis=1))
+    for far in (1e5, 1e30):  # a straggler: the cube over the bounding box needs more cells than the table's buckets
+        x[0] = far  # (1e30: more than an integer holds)
+        geometry, degree = bounded_grid_degrees(engine, x, radius)
+        assert geometry.boundary == OPEN
+        assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "open", 1.0).sum(axis=1))

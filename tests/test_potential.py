@@ -208,3 +208,71 @@ def test_frame_draws_the_graph(engine):
     model = Potential(cfg.params, cfg.seed, engine)
     frame = model.frame(np.arange(0, 60, 2), 50)
     assert frame.positions.shape == (30, 3) and 0 < len(frame.edges) <= 50
+
+
+def test_step_matches_reference_in_both_layouts(engine):
+    """The switching step on a bounded grid (the swarm's bounding box: 2D runs lane-wise on the CPU) and, with one
+    agent far out, on the hashed grid it falls back to: both follow the oracle step by step."""
+    from tflock.neighbors import BOUNDED, OPEN
+
+    cfg = config(**CASES["switching-2d"])
+    model = Potential(cfg.params, cfg.seed, engine)
+    state = model.state()
+    for layout, straggler in ((BOUNDED, None), (OPEN, 1e5)):
+        x, v = state["x"].copy(), state["v"].copy()
+        if straggler is not None:
+            x[0] = straggler
+        for t in range(10):
+            expected_x, expected_v = ref.potential_step(x, v, cfg.params)
+            model.set_state({"x": x, "v": v}, t)
+            model.advance(1)
+            assert model.grid.geometry.boundary == layout
+            got = model.state()
+            assert gap(got["v"], expected_v) < TOL and gap(got["x"], expected_x) < TOL, f"step {t}"
+            x, v = expected_x, expected_v
+
+
+def test_lane_wise_step_equals_per_agent_step(engine):
+    """The CPU's lane-wise 2D step (runs of cells, 8 agents at a time) adds the same terms in the same order as the
+    per-agent kernel on the same bounded grid: equal states (to an ulp or two, where the compiler fuses
+    differently), in a dense clump (cells of several lane blocks) and a sparse field (runs of several cells)."""
+    import taichi as ti
+
+    from tflock.models.potential import _sort_velocities, _step_lanes, _step_switching
+
+    if not Potential(config().params, 3, engine).lane_wise:
+        pytest.skip("the lane-wise step is the CPU's")
+    rng = np.random.default_rng(1)
+    n = 500
+    x = np.concatenate([rng.random((400, 2)) * 40.0, 15.0 + rng.random((100, 2)) * 2.0])
+    v = rng.normal(size=(n, 2))
+    cfg = config(n=n, box=40.0, topology="switching", min_separation=0.0)
+    model = Potential(cfg.params, cfg.seed, engine)
+    results = []
+    for lane_wise in (True, False):
+        model.set_state({"x": x, "v": v}, 0)
+        model._ensure_grid()
+        grid, g, p = model.grid, model.grid.geometry, cfg.params
+        _sort_velocities(n, 2, grid.order, model.vel, model.scratch)
+        args = (p.radius**2, p.desired_distance**2, p.dt)
+        if lane_wise:
+            _step_lanes(g.total_buckets, g.cells_per_side, *args, g.boundary, grid.start, grid.runs(),
+                        grid.id_sorted, grid.pos_sorted, model.scratch, model.pos, model.vel, model.ids)
+        else:
+            _step_switching(n, *args, 2, g.boundary, g.cells_per_side, g.n_buckets, grid.start, grid.mixed,
+                            grid.id_sorted, grid.pos_sorted, grid.coords_sorted, model.scratch, model.pos, model.vel,
+                            model.ids)
+        ti.sync()
+        results.append(model.state())
+    # rounding bound: a few ulps of the largest partial sums, dt times the sum of |terms| (close pairs in the clump
+    # give terms far larger than their sum)
+    d = x[None, :, :] - x[:, None, :]
+    r2 = (d * d).sum(axis=2)
+    np.fill_diagonal(r2, 1.0)
+    near = (r2 < cfg.params.radius**2) & ~np.eye(n, dtype=bool)
+    terms = np.abs(v[None, :, :] - v[:, None, :]) + np.abs(2 * (r2 - 1.0) / r2**2)[:, :, None] * np.abs(d)
+    scale = 1.0 + np.abs(v) + cfg.params.dt * (terms * near[:, :, None]).sum(axis=1)
+    ulp = np.finfo(engine.real).eps
+    for key in ("x", "v"):
+        a, b = (r[key].astype(np.float64) for r in results)
+        assert np.all(np.abs(a - b) <= 8 * ulp * (scale + np.abs(b))), key

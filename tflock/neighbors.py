@@ -12,6 +12,10 @@ an agent's cell.
   query keeps only agents whose cell coordinates equal the visited cell (no double counting, no box assumed).
   The build marks the buckets that hold more than one cell (``mixed``): a bucket of one cell is kept or skipped
   whole after one test, and only the agents of a mixed bucket are tested one by one.
+- open space, ``bounded`` grids: each build first takes the swarm's bounding box and, when a cube of cells of side
+  R over it fits in the hash table's buckets, lays those cells out row-major from its lower corner (layout
+  ``BOUNDED``, queried as a reflecting box is). Neighbouring cells are then neighbours in memory and a stencil row
+  is one span, as in a box; a swarm spread too thin for that (stragglers far out) falls back to the hash.
 - replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
   shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
   Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
@@ -45,6 +49,8 @@ from tflock.space import OPEN, PERIODIC, boundary_code, displacement
 
 _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
+#: layout code of a bounded open-space grid (see CellGrid): not a boundary (its displacement is the plain difference)
+BOUNDED = 3
 #: agents a lane-wise CPU kernel treats together: one AVX2 register of float32 (see :meth:`CellGrid.runs`)
 LANES = 8
 
@@ -79,11 +85,14 @@ def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, re
 
 
 @ti.func
-def cell_coords(p, cell_size, nc, boundary: ti.template()):
-    """Integer cell coordinates of position p (clamped into the box for box boundaries)."""
+def cell_coords(p, origin, cell_size, nc, boundary: ti.template()):
+    """Integer cell coordinates of position p (clamped into the grid for box and bounded layouts, whose cells
+    start at `origin`: zero for a box, the bounding box's lower corner for a bounded grid)."""
     c = ti.Vector([0] * p.n, dt=ti.i32)
     if ti.static(boundary == OPEN):
         c = ti.cast(ti.floor(p / cell_size), ti.i32)
+    elif ti.static(boundary == BOUNDED):  # p >= origin: truncation is the floor
+        c = ti.math.clamp(ti.cast((p - origin) / cell_size, ti.i32), 0, nc - 1)
     else:  # coordinates are >= 0: truncation is the floor, and cheaper
         c = ti.math.clamp(ti.cast(p / cell_size, ti.i32), 0, nc - 1)
     return c
@@ -228,11 +237,13 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), by_rank: ti.template()):
+           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
+           by_rank: ti.template()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
-        local = cell_coords(load_vec(pos, e, dim), cell_size, nc, boundary)
+        origin = ti.Vector([bounds[0, d] for d in ti.static(range(dim))])
+        local = cell_coords(load_vec(pos, e, dim), origin, cell_size, nc, boundary)
         c = ti.Vector([0] * (dim + 1), dt=ti.i32)
         for d in ti.static(range(dim)):
             c[d] = local[d]
@@ -311,6 +322,32 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
 
 
 @ti.kernel
+def _bounds(n: ti.i32, dim: ti.template(), pos: ti.types.ndarray(), partial: ti.types.ndarray(),
+            bounds: ti.types.ndarray()):
+    """The bounding box of n positions: bounds[0] the lower corner, bounds[1] the upper (block minima and maxima in
+    parallel, then a serial pass over the blocks; no atomics on one shared address)."""
+    for blk in range(partial.shape[1]):
+        lo = load_vec(pos, blk * SCAN_BLOCK, dim)
+        hi = lo
+        for e in range(blk * SCAN_BLOCK + 1, ti.min(n, (blk + 1) * SCAN_BLOCK)):
+            p = load_vec(pos, e, dim)
+            lo = ti.min(lo, p)
+            hi = ti.max(hi, p)
+        for d in ti.static(range(dim)):
+            partial[d, blk] = lo[d]
+            partial[dim + d, blk] = hi[d]
+    ti.loop_config(serialize=True)
+    for d in range(dim):
+        lo = partial[d, 0]
+        hi = partial[dim + d, 0]
+        for blk in range(1, partial.shape[1]):
+            lo = ti.min(lo, partial[d, blk])
+            hi = ti.max(hi, partial[dim + d, blk])
+        bounds[0, d] = lo
+        bounds[1, d] = hi
+
+
+@ti.kernel
 def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
     """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`): one pass along each
     row, a cell joining the open run while the agents fit in the lanes."""
@@ -342,6 +379,21 @@ def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types
                 agents = here
         if begin >= 0:
             run_end[base + begin] = nc
+
+
+@ti.func
+def run_at(b, nc, start: ti.template(), run_end: ti.template()):
+    """The run of cells that starts at bucket b (see :meth:`CellGrid.runs`): its grid row, its columns [x0, x1) in
+    that row and its sorted agents [a0, a1); a0 == a1 where no run starts at b. Lane-wise kernels take the agents
+    ``LANES`` at a time, ``for block in range((a1 - a0 + LANES - 1) // LANES)``."""
+    x1 = run_end[b]
+    row = b // nc
+    x0 = b - row * nc
+    a0 = start[b]
+    a1 = a0
+    if x1 >= 0:
+        a1 = start[row * nc + x1]
+    return row, x0, x1, a0, a1
 
 
 @ti.func
@@ -415,17 +467,25 @@ class CellGrid:
     and ``pos_sorted`` / ``coords_sorted`` (cell coordinates, then replica) are in slot order; :meth:`slots`
     gives the slot of each agent. With ``replicas`` > 1 the n agents are that many independent systems of
     n / replicas agents each (agent id = replica * n / replicas + local id) that never see each other.
+
+    ``bounded`` (open space, one replica): each build lays cells over the swarm's bounding box when they fit (see
+    the module); ``geometry`` is then the layout of the last build, so kernels read it after building. A batch
+    of replicas keeps the hash, which lays each replica out as its lone run does only when the layout does not
+    depend on the positions.
     """
 
     def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type,
-                 replicas: int = 1, rank_sort: bool | None = None) -> None:
+                 replicas: int = 1, rank_sort: bool | None = None, bounded: bool = False) -> None:
         if n % replicas:
             raise ValueError(f"{n} agents do not split into {replicas} equal replicas")
         self.n = n
         self.real = real
         self.replicas = replicas
+        self.radius = radius
         self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas)
+        self._hashed = self.geometry  # open space: the fallback layout, whose table sizes the arrays
         g = self.geometry
+        self.bounded = bounded and g.boundary == OPEN and replicas == 1
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.coords = ti.ndarray(ti.i32, (dim + 1, n))
         self.bucket = ti.ndarray(ti.i32, n)
@@ -440,8 +500,12 @@ class CellGrid:
         # open space: 1 for a bucket that holds more than one cell (see span_agents); unused in a box
         self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
         self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
-        self.run_end = ti.ndarray(ti.i32, g.total_buckets if g.boundary != OPEN else 1)  # see runs()
+        self.run_end: ti.Ndarray | None = None  # see runs(); allocated on first use (CPU lane-wise kernels only)
         self._runs_fresh = False
+        # a bounded grid's bounding box (lower corner: its origin) and the block extrema that give it; zeros (the
+        # origin of a box) otherwise
+        self.bounds = ti.ndarray(ftype, (2, dim))
+        self._bound_blocks = ti.ndarray(ftype, (2 * dim, (n + SCAN_BLOCK - 1) // SCAN_BLOCK if self.bounded else 1))
         # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
@@ -449,13 +513,29 @@ class CellGrid:
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
+        if self.bounded:
+            self.geometry = self._layout(pos)
         g = self.geometry
         _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.rank_sort)
+               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
+               self.rank_sort)
         self._slots_fresh = False
         self._runs_fresh = False
+
+    def _layout(self, pos: ti.Ndarray) -> GridGeometry:
+        """A bounded grid's layout for these positions: cells of side R (a hair more, so that rounding never puts
+        two agents within R two cells apart) over the bounding box's cube, or the hash when they are too many."""
+        h = self._hashed
+        _bounds(self.n, h.dim, pos, self._bound_blocks, self.bounds)
+        lo, hi = self.bounds.to_numpy().astype(np.float64)
+        side = self.radius * (1.0 + 1e-6)
+        per_side = float(np.max(hi - lo)) / side + 1  # a float first: a far-flung or non-finite swarm overflows ints
+        if not per_side <= h.n_buckets or int(per_side) ** h.dim > h.n_buckets:
+            return h
+        per_side = int(per_side)
+        return GridGeometry(h.dim, BOUNDED, side, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.
@@ -469,7 +549,7 @@ class CellGrid:
         return self.slot_of
 
     def runs(self) -> ti.Ndarray:
-        """Runs of cells for lane-wise kernels (box grids), computed on first use after a build.
+        """Runs of cells for lane-wise kernels (box and bounded grids), computed on first use after a build.
 
         Each row is cut into runs of consecutive cells that start at an occupied cell and hold at most ``LANES``
         agents together (a fuller cell is a run of its own); ``run_end[b]`` is one past the last cell of the run
@@ -480,8 +560,10 @@ class CellGrid:
         """
         g = self.geometry
         if g.boundary == OPEN:
-            raise ValueError("runs need a box grid (open space hashes its cells)")
+            raise ValueError("runs need a box or bounded grid (this build hashed its cells)")
         if not self._runs_fresh:
+            if self.run_end is None:
+                self.run_end = ti.ndarray(ti.i32, self.counts.shape[0])
             _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_end)
             self._runs_fresh = True
         return self.run_end

@@ -3,8 +3,8 @@
 The memory estimate counts, per agent, the arrays each model allocates (state, neighbour grid, graph metrics)
 and the larger of its host copies (the NumPy start-up draws, then the non-finite guard's copy of a good state)
 at the run's float size, and compares the total with the machine's physical memory. It is rough (the grid's bucket count
-varies with the box) but close: at f32 the default configs count 104 (vicsek), 132 (adaptive), 144 (potential)
-and 144 (formation) device bytes per agent, and ``tests/test_bad_input.py`` checks the counts against the
+varies with the box) but close: at f32 the default configs count 124 (vicsek), 132 (adaptive), 156 (potential)
+and 176 (formation) device bytes per agent, and ``tests/test_bad_input.py`` checks the counts against the
 arrays the models really allocate (:func:`tflock.bench.device_bytes`).
 """
 
@@ -38,8 +38,9 @@ def _vicsek(p: Any) -> tuple[float, float]:
 
 
 def _potential(p: Any) -> tuple[float, float]:  # pos, vel, scratch (+ pos_next), energy, nearest; ids, where,
-    fixed = p.topology == "fixed"  # valency (+ CSR offsets and ~2 neighbour entries on a fixed graph)
-    return (4 if fixed else 3) * p.dim + 2, 6 if fixed else 3
+    fixed = p.topology == "fixed"  # valency (+ CSR offsets and ~2 neighbour entries on a fixed graph; the runs of
+    lane_wise = 3 if p.dim == 2 and not fixed else 0  # cells of the 2D switching step, one per bucket)
+    return (4 if fixed else 3) * p.dim + 2, (6 if fixed else 3) + lane_wise
 
 
 #: (floats, ints) per agent of each model's own arrays, counted from its allocations (a new model adds its count)
@@ -47,7 +48,9 @@ MODEL_ARRAYS: dict[str, Callable[[Any], tuple[float, float]]] = {
     "vicsek": _vicsek,
     "adaptive": lambda p: (3 * p.dim + 1, 1),  # pos, dirs, payload (dim each), phi; ids
     "potential": _potential,
-    "formation": lambda p: (14, 8),  # two buffers of pos 2, f 4, i 2 and ids; payload 2, rule, where
+    # two buffers of pos 2, f 4, i 2 and ids; payload 2, rule, where; its torus is mostly empty, so the grid has
+    # its cap of 4 cells per agent: 2 more than _grid counts (a count and a start each), and 4 run ends
+    "formation": lambda p: (14, 16),
 }
 
 

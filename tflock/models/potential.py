@@ -8,8 +8,10 @@ with the potential of Definition 2, V(r) = d^2 / r^2 + ln(r^2) (minimum at the d
 whose gradient is grad_{r_i} V(|r_ij|) = 2 (|r_ij|^2 - d^2) / |r_ij|^4 r_ij, r_ij = r_i - r_j.
 
 - switching topology (section 5): N_i = {j : |r_ij| < R}, d < R; the saturated U(r) = V(min(r, R)) makes the force
-  vanish beyond R. Neighbours come from the open-space hashed cell grid, the state is kept in cell order (``ids``
-  names the agent at each element), as in the Vicsek model.
+  vanish beyond R. Neighbours come from an open-space cell grid laid over the swarm's bounding box (hashed when a
+  straggler spreads that box too thin; :class:`tflock.neighbors.CellGrid`), the state is kept in cell order
+  (``ids`` names the agent at each element), as in the Vicsek model. On the CPU a 2D step takes runs of cells 8
+  agents at a time (:func:`_step_lanes`); 3D and GPU arches visit each agent's stencil alone.
 - fixed topology (section 4): a connected graph (:mod:`tflock.models.potential_graphs`) in CSR form, neighbours
   regardless of distance; the state stays in agent order.
 
@@ -35,8 +37,20 @@ from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
-from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
-from tflock.space import OPEN
+from tflock.neighbors import (
+    BOUNDED,
+    LANES,
+    CellGrid,
+    lanes,
+    load_cell,
+    load_vec,
+    run_at,
+    run_spans,
+    same_cell,
+    span_agents,
+    span_count,
+    stencil_span,
+)
 
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
@@ -68,37 +82,94 @@ def _pair_acceleration(p, v, q, w, d2):
 
 
 @ti.kernel
-def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(), nc: ti.i32,
-                    n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(), order: ti.types.ndarray(),
-                    id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
-                    vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
-                    ids: ti.types.ndarray()):
-    for s in range(n):  # velocities in cell order: contiguous reads in the neighbour loop
+def _sort_velocities(n: ti.i32, dim: ti.template(), order: ti.types.ndarray(), vel: ti.types.ndarray(),
+                     vel_sorted: ti.types.ndarray()):
+    """Velocities in cell order: contiguous reads in the neighbour loops."""
+    for s in range(n):
         e = order[s]
         for a in ti.static(range(dim)):
             vel_sorted[a, s] = vel[a, e]
+
+
+@ti.kernel
+def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(), layout: ti.template(),
+                    nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                    id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                    vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+                    ids: ti.types.ndarray()):
+    """One step, each agent's stencil visited alone (3D, GPU arches, and the hashed layout)."""
     for s in range(n):  # new state written at slot s: the arrangement becomes this step's cell order
         p = load_vec(pos_sorted, s, dim)
         v = load_vec(vel_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)
         u = ti.Vector([0.0] * dim)
-        for o in range(ti.static(span_count(OPEN, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
-            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, OPEN, dim)
+        for o in range(ti.static(span_count(layout, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
             for k in range(begin, end):
                 q = load_vec(pos_sorted, k, dim)
                 r2 = (q - p).norm_sqr()
-                inside = ti.select(r2 < r2cut, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
+                inside = r2 < r2cut and k != s
                 if check:
-                    inside *= same_cell(coords_sorted, k, cell, OPEN, dim)
-                q = ti.select(k != s, q, p + 1.0)  # itself: any finite term (weight 0), no 0 / 0
-                u += inside * _pair_acceleration(p, v, q, load_vec(vel_sorted, k, dim), d2)
+                    inside = inside and same_cell(coords_sorted, k, cell, layout, dim) == 1
+                q = ti.select(k != s, q, p + 1.0)  # itself: any finite term (not added), no 0 / 0
+                u += ti.select(inside, _pair_acceleration(p, v, q, load_vec(vel_sorted, k, dim), d2), 0.0)
         v_new = v + dt * u
         p_new = p + dt * v_new
         for a in ti.static(range(dim)):
             vel[a, s] = v_new[a]
             pos[a, s] = p_new[a]
         ids[s] = id_sorted[s]
+
+
+@ti.func
+def _accelerations(begin, end, s, px, py, vx, vy, ux, uy, r2cut, d2, pos_sorted: ti.template(),
+                   vel_sorted: ti.template()):
+    """Add the terms of u_i (eq. 3) of the candidates [begin, end) within R to each lane's sums (2D)."""
+    for k in range(begin, end):
+        dx = pos_sorted[0, k] - px
+        dy = pos_sorted[1, k] - py
+        r2 = dx * dx + dy * dy
+        inside = (r2 < r2cut) & (s != k)
+        coef = 2.0 * (r2 - d2) / (r2 * r2)  # itself: 0 / 0, never added
+        ux += ti.select(inside, (vel_sorted[0, k] - vx) + coef * dx, 0.0)
+        uy += ti.select(inside, (vel_sorted[1, k] - vy) + coef * dy, 0.0)
+    return ux, uy
+
+
+@ti.kernel
+def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: float, layout: ti.template(),
+                start: ti.types.ndarray(), run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(),
+                vel: ti.types.ndarray(), ids: ti.types.ndarray()):
+    """One 2D step on the CPU, ``LANES`` agents at a time: the agents of each run of cells (:meth:`CellGrid.runs`)
+    against every candidate of the run's 3 x (width + 2) cells, then the move (as :func:`_step_switching`, term for
+    term and in the same order: a run's wider window only adds candidates beyond R, which are not added)."""
+    for b in range(total_buckets):
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        for block in range((a1 - a0 + LANES - 1) // LANES):
+            i0 = a0 + block * LANES
+            s = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
+            px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+            py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+            vx = lanes(vel_sorted, 0, i0, a1 - 1, LANES)
+            vy = lanes(vel_sorted, 1, i0, a1 - 1, LANES)
+            ux = ti.Vector([0.0] * LANES)
+            uy = ti.Vector([0.0] * LANES)
+            for r in range(3):
+                begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout)
+                ux, uy = _accelerations(begin, end, s, px, py, vx, vy, ux, uy, r2cut, d2, pos_sorted, vel_sorted)
+            vx += dt * ux
+            vy += dt * uy
+            px += dt * vx
+            py += dt * vy
+            for k in ti.static(range(LANES)):
+                if i0 + k < a1:
+                    vel[0, i0 + k] = vx[k]
+                    vel[1, i0 + k] = vy[k]
+                    pos[0, i0 + k] = px[k]
+                    pos[1, i0 + k] = py[k]
+                    ids[i0 + k] = id_sorted[i0 + k]
 
 
 @ti.kernel
@@ -120,10 +191,10 @@ def _step_fixed(n: ti.i32, d2: float, dt: float, dim: ti.template(), offsets: ti
 
 
 @ti.kernel
-def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(), nc: ti.i32,
-                n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-                pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), valency: ti.types.ndarray(),
-                energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
+def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(), layout: ti.template(),
+                nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                valency: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
     """Per agent (agent order): valency |N_i| (|r_ij| < R), half its saturated potential 1/2 sum (V - V(R)) and
     the distance to its nearest agent, capped at R."""
     for s in range(n):
@@ -132,12 +203,12 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
         count = 0
         pot = 0.0
         near = r2cut
-        for o in range(ti.static(span_count(OPEN, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, OPEN, dim)
-            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, OPEN, dim)
+        for o in range(ti.static(span_count(layout, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
             for k in range(begin, end):
                 r2 = (load_vec(pos_sorted, k, dim) - p).norm_sqr()
-                other = (check == 0 or same_cell(coords_sorted, k, cell, OPEN, dim) == 1) and k != s
+                other = (check == 0 or same_cell(coords_sorted, k, cell, layout, dim) == 1) and k != s
                 if other and r2 < r2cut:
                     count += 1
                     pot += d2 / r2 + ti.log(r2) - v_cut
@@ -207,7 +278,8 @@ class Potential(GridModel):
         self.valency = ti.ndarray(ti.i32, n)
         self.energy = ti.ndarray(ftype, n)
         self.nearest = ti.ndarray(ftype, n)
-        self.grid = CellGrid(n, dim, "open", params.box, params.radius, real)
+        self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=True)
+        self.lane_wise = dim == 2 and engine.arch == "cpu" and self.switching  # see _step_lanes
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1
         if not self.switching:
@@ -280,14 +352,20 @@ class Potential(GridModel):
     def advance(self, steps: int) -> None:
         p = self.params
         d2 = p.desired_distance**2
-        g = self.grid.geometry
+        grid = self.grid
         for _ in range(steps):
             if self.switching:
                 self._ensure_grid()
-                _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.cells_per_side, g.n_buckets,
-                                self.grid.start, self.grid.mixed, self.grid.order, self.grid.id_sorted,
-                                self.grid.pos_sorted, self.grid.coords_sorted, self.scratch, self.pos, self.vel,
+                g = grid.geometry  # this build's layout: bounded or hashed
+                _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
+                if self.lane_wise and g.boundary == BOUNDED:
+                    _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, g.boundary, grid.start,
+                                grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos, self.vel,
                                 self.ids)
+                else:
+                    _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.boundary, g.cells_per_side,
+                                    g.n_buckets, grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted,
+                                    grid.coords_sorted, self.scratch, self.pos, self.vel, self.ids)
             else:
                 _step_fixed(p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
                             self.pos_next, self.scratch)
@@ -321,26 +399,27 @@ class Potential(GridModel):
             self._lambda2_step = step
         return self._lambda2_value
 
+    def _grid_pairs(self, valency: ti.Ndarray, energy: ti.Ndarray) -> None:
+        """Valency, half the saturated potential and the nearest distance of each agent, from the grid."""
+        p, g, grid = self.params, self.grid.geometry, self.grid
+        d2 = p.desired_distance**2
+        v_cut = d2 / p.radius**2 + math.log(p.radius**2)
+        _grid_pairs(p.n, p.radius**2, d2, v_cut, self.dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start,
+                    grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
+
     def metrics(self) -> dict[str, float]:
         p = self.params
         n, d2 = p.n, p.desired_distance**2
         self._ensure_grid()
-        g = self.grid.geometry
         if self.switching:
-            v_cut = d2 / p.radius**2 + math.log(p.radius**2)
-            _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
-                        self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
-                        self.valency, self.energy, self.nearest)
+            self._grid_pairs(self.valency, self.energy)
             graph = self.graph.compute(p.radius, p.box)
             components = graph["clusters"]
         else:
             _csr_energy(n, d2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
             components = 1.0  # validated connected, and fixed
             if n > EXACT_PAIRS_MAX:
-                v_cut = d2 / p.radius**2 + math.log(p.radius**2)
-                _grid_pairs(n, p.radius**2, d2, v_cut, self.dim, g.cells_per_side, g.n_buckets, self.grid.start,
-                            self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
-                            self._grid_valency, self._grid_energy, self.nearest)
+                self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX:
             _exact_nearest(n, self.dim, self.pos, self.nearest)
         v = self.vel.to_numpy().astype(np.float64).T  # order of the agents does not matter below
@@ -401,14 +480,15 @@ class Potential(GridModel):
             edges = self.drawing(selected).edges(p.box, p.radius, max_edges)
         else:
             edges = self._fixed_edges(selected, pos, max_edges)
-        return Frame(
-            positions=pos.astype(np.float32),
-            directions=vel.astype(np.float32),
-            arrow_length=p.desired_distance / p.speed,
-            colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
-            edges=np.asarray(edges, dtype=np.float32),
-            radius=0.1 * p.desired_distance,
-        )
+        with np.errstate(over="ignore"):  # an f64 run on its way to a fault exceeds float32 first: drawn as inf
+            return Frame(
+                positions=pos.astype(np.float32),
+                directions=vel.astype(np.float32),
+                arrow_length=p.desired_distance / p.speed,
+                colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
+                edges=np.asarray(edges, dtype=np.float32),
+                radius=0.1 * p.desired_distance,
+            )
 
     def _fixed_edges(self, selected: np.ndarray, pos: np.ndarray, max_edges: int) -> np.ndarray:
         """Edges of the fixed graph from each drawn agent (in id order) to its neighbours, at most max_edges."""

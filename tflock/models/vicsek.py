@@ -51,6 +51,7 @@ from tflock.neighbors import (
     lanes,
     load_cell,
     load_vec,
+    run_at,
     run_spans,
     run_wraps,
     same_cell,
@@ -258,38 +259,33 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
     """Per agent (cell order), over N_i and i itself: the rule's sums (``vector``: sum cos, sum sin; ``relative``:
     sum wrap(theta_j - theta_i); others: sum theta_j) and, except for ``vector``, the count 1 + n_i."""
     for b in range(total_buckets):
-        x1 = run_end[b]
-        if x1 >= 0:
-            r2 = radius * radius
-            row = b // nc
-            x0 = b - row * nc
-            a0 = start[b]
-            a1 = start[row * nc + x1]
-            wraps = run_wraps(row, x0, x1, nc, boundary)
-            for block in range((a1 - a0 + LANES - 1) // LANES):
-                i0 = a0 + block * LANES
-                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
-                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
-                th = lanes(payload, 2, i0, a1 - 1, LANES)
-                acc_a = ti.Vector([0.0] * LANES)
-                acc_b = ti.Vector([0.0] * LANES)
-                count = ti.Vector([0.0] * LANES)
-                for r in range(3):
-                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary)
-                    for h in range(2):
-                        begin = ti.select(h == 0, b0, b1)
-                        end = ti.select(h == 0, e0, e1)
-                        if wraps:
-                            acc_a, acc_b, count = _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box,
-                                                              pos_sorted, payload, rule, True)
-                        else:
-                            acc_a, acc_b, count = _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box,
-                                                              pos_sorted, payload, rule, False)
-                for k in ti.static(range(LANES)):
-                    if i0 + k < a1:
-                        sums[0, i0 + k] = acc_a[k]
-                        sums[1, i0 + k] = acc_b[k]
-                        sums[2, i0 + k] = count[k]
+        r2 = radius * radius
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        wraps = run_wraps(row, x0, x1, nc, boundary)
+        for block in range((a1 - a0 + LANES - 1) // LANES):
+            i0 = a0 + block * LANES
+            px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+            py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+            th = lanes(payload, 2, i0, a1 - 1, LANES)
+            acc_a = ti.Vector([0.0] * LANES)
+            acc_b = ti.Vector([0.0] * LANES)
+            count = ti.Vector([0.0] * LANES)
+            for r in range(3):
+                b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary)
+                for h in range(2):
+                    begin = ti.select(h == 0, b0, b1)
+                    end = ti.select(h == 0, e0, e1)
+                    if wraps:
+                        acc_a, acc_b, count = _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box,
+                                                          pos_sorted, payload, rule, True)
+                    else:
+                        acc_a, acc_b, count = _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box,
+                                                          pos_sorted, payload, rule, False)
+            for k in ti.static(range(LANES)):
+                if i0 + k < a1:
+                    sums[0, i0 + k] = acc_a[k]
+                    sums[1, i0 + k] = acc_b[k]
+                    sums[2, i0 + k] = count[k]
 
 
 @ti.func
