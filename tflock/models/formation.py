@@ -65,10 +65,21 @@ from tflock.models.formation_params import (
     VA_COHESION,
     FormationParams,
 )
-from tflock.neighbors import CellGrid, load_cell, load_vec, span_count, stencil_span
+from tflock.neighbors import (
+    LANES,
+    CellGrid,
+    lanes,
+    load_cell,
+    load_vec,
+    run_at,
+    run_spans,
+    run_wraps,
+    span_count,
+    stencil_span,
+)
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
-from tflock.space import PERIODIC, displacement, wrap_periodic, wrap_pi, wrap_two_pi
+from tflock.space import PERIODIC, REFLECTING, displacement, wrap_periodic, wrap_pi, wrap_two_pi
 
 TWO_PI = 2 * math.pi
 # slots of the constants array
@@ -79,6 +90,7 @@ THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
 IN_FLAG, RAMP_START = range(2)
 RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
 VA_COLOR = (255, 210, 0)
+NO_AGENT = 2**31 - 1  # an id above every agent's
 SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
 
 
@@ -97,117 +109,190 @@ def df_holds(q, theta, speed, va, c: ti.template()):
     return d.norm_sqr() <= c[VAIR2] and aligned and settled
 
 
+@ti.func
+def _no_neighbours(width: ti.template(), c: ti.template()):
+    """The sums of :func:`_scan` before any candidate, for `width` agents: zeros, and as the nearest neighbour
+    none, at the minimum separation with an id above all (a neighbour exactly that far replaces it, which
+    changes nothing: eq. (4) asks for one strictly closer)."""
+    zero = ti.Vector([0.0] * width)
+    return zero, zero, zero, zero, zero, zero, zero + c[SEP2], ti.Vector([NO_AGENT] * width), zero, zero
+
+
+@ti.func
+def _scan(begin, end, s, px, py, a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y,
+          c: ti.template(), zones: ti.template(), minimum_image: ti.template(), id_sorted: ti.template(),
+          pos_sorted: ti.template(), payload: ti.template()):
+    """Step 1 for the candidates [begin, end): add those each agent sees to its zone sums, and keep its nearest
+    neighbour at most the minimum separation away (lowest id on ties). Element-wise: the agents at slots s with
+    positions (px, py) are the lanes of vectors, a single agent a vector of one. Without ``minimum_image`` the
+    plain difference is taken (see :func:`tflock.neighbors.run_wraps`)."""
+    r2, sep2, align2, world = c[R2], c[SEP2], c[ALIGN2], c[WORLD]  # locals: kept in registers in the loop
+    metric = ti.static(PERIODIC if minimum_image else REFLECTING)  # REFLECTING: the plain difference
+    for k in range(begin, end):
+        xk = pos_sorted[0, k]
+        if xk > 2 * world:  # never (positions lie in the torus); an exit LLVM's loop vectoriser cannot handle keeps
+            break  # it off this loop (see the Vicsek model's lane-wise sums)
+        dx = displacement(px, xk, world, metric)
+        dy = displacement(py, pos_sorted[1, k], world, metric)
+        d2 = dx * dx + dy * dy
+        other = s != k
+        seen = (d2 <= r2) & other
+        wa = seen
+        wc = seen
+        if ti.static(zones == 2):  # rings: alignment [sep, align), cohesion [align, R]
+            wa = seen & (d2 >= sep2) & (d2 < align2)
+            wc = seen & (d2 >= align2)
+        a_cos += ti.select(wa, payload[0, k], 0.0)
+        a_sin += ti.select(wa, payload[1, k], 0.0)
+        a_count += ti.select(wa, 1.0, 0.0)
+        c_x += ti.select(wc, dx, 0.0)
+        c_y += ti.select(wc, dy, 0.0)
+        c_count += ti.select(wc, 1.0, 0.0)
+        j = id_sorted[k]
+        nearer = other & ((d2 < best) | ((d2 == best) & (j < best_id)))
+        best = ti.select(nearer, d2, best)
+        best_id = ti.select(nearer, j, best_id)
+        away_x = ti.select(nearer, -dx, away_x)
+        away_y = ti.select(nearer, -dy, away_y)
+    return a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y
+
+
+@ti.func
+def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, a_sin, a_count, c_x, c_y, c_count,
+             best, away, order: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(),
+             f_old: ti.template(), i_old: ti.template(), pos_new: ti.template(), f_new: ti.template(),
+             i_new: ti.template(), ids_new: ti.template(), rule: ti.template()):
+    """Steps 2-6 for the agent at slot s, from its neighbour sums: the new state is written at slot s. Returns 1
+    when the agent is outside the desired formation afterwards (Definition 1), else 0."""
+    i = id_sorted[s]
+    e = order[s]
+    p = load_vec(pos_sorted, s, 2)
+    th = f_old[THETA, e]
+    dva = displacement(p, va, c[WORLD], PERIODIC)
+    inside = dva.norm_sqr() <= c[VAIR2]
+    active = ti.select(inside, in_set, out_set)
+    num = 0.0
+    den = 0.0
+    if (active & ALIGN) != 0 and a_count > 0:
+        num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
+        den += c[W_A]
+    if (active & COHESION) != 0 and c_count > 0:
+        num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
+        den += c[W_C]
+    if (active & VA_ALIGN) != 0:
+        num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
+        den += c[W_AV]
+    if (active & VA_COHESION) != 0:
+        num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
+        den += c[W_CV]
+    force = 0.0
+    if den > 0:
+        force = num / den  # eq. (3)
+    r = ti.select(inside, INSIDE, OUTSIDE)
+    if best < c[SEP2]:  # eq. (4)
+        force = unit_force(ti.atan2(away[1], away[0]), th, c[SEP_CAP])
+        r = SEPARATION
+    if uniform_ti(seed, t, i, Stream.UPDATE) < c[FAIL]:
+        force = 0.0
+        r = FAILED
+    eps = c[NOISE] * (2.0 * uniform_ti(seed, t, i, Stream.NOISE) - 1.0)
+    new = wrap_two_pi(th + force + eps)  # eqs. (5), (7)
+    # speed ramps, eqs. (1)-(2)
+    flag = ti.select(inside, 1, 0)
+    v_from = f_old[RAMP_FROM, e]
+    t_start = i_old[RAMP_START, e]
+    duration = f_old[RAMP_DURATION, e]
+    if flag != i_old[IN_FLAG, e]:
+        v_from = f_old[SPEED, e]
+        t_start = t
+        jitter = c[JITTER] * c[RAMP_TIME] * (2.0 * uniform_ti(seed, t, i, RAMP_STREAM) - 1.0)
+        duration = ti.max(1.0, c[RAMP_TIME] + jitter)
+    target = ti.select(inside, c[VA_SPEED], c[OUT_SPEED])
+    progress = (t + 1 - t_start) / duration
+    speed = target
+    if progress < 1:
+        speed = v_from + (target - v_from) * progress
+    q = wrap_periodic(p + speed * ti.Vector([ti.cos(new), ti.sin(new)]), c[WORLD])
+    pos_new[0, s] = q[0]
+    pos_new[1, s] = q[1]
+    f_new[THETA, s] = new
+    f_new[SPEED, s] = speed
+    f_new[RAMP_FROM, s] = v_from
+    f_new[RAMP_DURATION, s] = duration
+    i_new[IN_FLAG, s] = flag
+    i_new[RAMP_START, s] = t_start
+    ids_new[s] = i
+    rule[i] = r
+    return ti.select(df_holds(q, new, speed, va_next, c), 0, 1)
+
+
 @ti.kernel
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
           zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
-          nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), order: ti.types.ndarray(),
-          id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
-          payload: ti.types.ndarray(), f_old: ti.types.ndarray(), i_old: ti.types.ndarray(),
-          pos_new: ti.types.ndarray(), f_new: ti.types.ndarray(), i_new: ti.types.ndarray(),
-          ids_new: ti.types.ndarray(), rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
+          nc: ti.i32, n_buckets: ti.i32, lane_wise: ti.template(), start: ti.types.ndarray(),
+          run_end: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+          pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
+          f_old: ti.types.ndarray(), i_old: ti.types.ndarray(), pos_new: ti.types.ndarray(),
+          f_new: ti.types.ndarray(), i_new: ti.types.ndarray(), ids_new: ti.types.ndarray(),
+          rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
+    """One synchronous step (see the module). ``lane_wise`` (the CPU): the agents of each run of cells
+    (:meth:`CellGrid.runs`) are scanned ``LANES`` at a time against the run's 3 x (width + 2) cells; otherwise
+    each agent scans its own stencil. Both meet the same candidates in the same order (a run's wider window only
+    adds candidates beyond R), so they give the same step."""
     for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
         th = f_old[THETA, order[s]]
         payload[0, s] = ti.cos(th)
         payload[1, s] = ti.sin(th)
     bad[0] = 0
-    for s in range(n):
-        va = ti.Vector([va_x, va_y])
-        va_next = ti.Vector([next_x, next_y])
-        i = id_sorted[s]
-        e = order[s]
-        p = load_vec(pos_sorted, s, 2)
-        cell = load_cell(coords_sorted, s, 2)
-        th = f_old[THETA, e]
-        a_cos = 0.0
-        a_sin = 0.0
-        a_count = 0.0
-        c_x = 0.0
-        c_y = 0.0
-        c_count = 0.0
-        r2, sep2, align2, world = c[R2], c[SEP2], c[ALIGN2], c[WORLD]  # locals: kept in registers in the loop
-        best = sep2  # nearest neighbour closer than the minimum separation
-        best_id = -1
-        away = ti.Vector([0.0, 0.0])
-        for o in range(ti.static(span_count(PERIODIC, 2))):
-            lo, hi, _ = stencil_span(cell, o, nc, n_buckets, PERIODIC, 2)
-            for k in range(start[lo], start[hi]):
-                d = displacement(p, load_vec(pos_sorted, k, 2), world, PERIODIC)
-                d2 = d.norm_sqr()
-                seen = ti.select(d2 <= r2, 1.0, 0.0) * ti.select(k != s, 1.0, 0.0)
-                wa = seen
-                wc = seen
-                if ti.static(zones == 2):  # rings: alignment [sep, align), cohesion [align, R]
-                    wa = seen * ti.select(d2 >= sep2, 1.0, 0.0) * ti.select(d2 < align2, 1.0, 0.0)
-                    wc = seen * ti.select(d2 >= align2, 1.0, 0.0)
-                a_cos += wa * payload[0, k]
-                a_sin += wa * payload[1, k]
-                a_count += wa
-                c_x += wc * d[0]
-                c_y += wc * d[1]
-                c_count += wc
-                if d2 <= best and k != s:
-                    j = id_sorted[k]
-                    if d2 < best or best_id < 0 or j < best_id:
-                        best = d2
-                        best_id = j
-                        away = -d
-        dva = displacement(p, va, c[WORLD], PERIODIC)
-        inside = dva.norm_sqr() <= c[VAIR2]
-        active = ti.select(inside, in_set, out_set)
-        num = 0.0
-        den = 0.0
-        if (active & ALIGN) != 0 and a_count > 0:
-            num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
-            den += c[W_A]
-        if (active & COHESION) != 0 and c_count > 0:
-            num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
-            den += c[W_C]
-        if (active & VA_ALIGN) != 0:
-            num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
-            den += c[W_AV]
-        if (active & VA_COHESION) != 0:
-            num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
-            den += c[W_CV]
-        force = 0.0
-        if den > 0:
-            force = num / den  # eq. (3)
-        r = ti.select(inside, INSIDE, OUTSIDE)
-        if best_id >= 0 and best < c[SEP2]:  # eq. (4)
-            force = unit_force(ti.atan2(away[1], away[0]), th, c[SEP_CAP])
-            r = SEPARATION
-        if uniform_ti(seed, t, i, Stream.UPDATE) < c[FAIL]:
-            force = 0.0
-            r = FAILED
-        eps = c[NOISE] * (2.0 * uniform_ti(seed, t, i, Stream.NOISE) - 1.0)
-        new = wrap_two_pi(th + force + eps)  # eqs. (5), (7)
-        # speed ramps, eqs. (1)-(2)
-        flag = ti.select(inside, 1, 0)
-        v_from = f_old[RAMP_FROM, e]
-        t_start = i_old[RAMP_START, e]
-        duration = f_old[RAMP_DURATION, e]
-        if flag != i_old[IN_FLAG, e]:
-            v_from = f_old[SPEED, e]
-            t_start = t
-            jitter = c[JITTER] * c[RAMP_TIME] * (2.0 * uniform_ti(seed, t, i, RAMP_STREAM) - 1.0)
-            duration = ti.max(1.0, c[RAMP_TIME] + jitter)
-        target = ti.select(inside, c[VA_SPEED], c[OUT_SPEED])
-        progress = (t + 1 - t_start) / duration
-        speed = target
-        if progress < 1:
-            speed = v_from + (target - v_from) * progress
-        q = wrap_periodic(p + speed * ti.Vector([ti.cos(new), ti.sin(new)]), c[WORLD])
-        pos_new[0, s] = q[0]
-        pos_new[1, s] = q[1]
-        f_new[THETA, s] = new
-        f_new[SPEED, s] = speed
-        f_new[RAMP_FROM, s] = v_from
-        f_new[RAMP_DURATION, s] = duration
-        i_new[IN_FLAG, s] = flag
-        i_new[RAMP_START, s] = t_start
-        ids_new[s] = i
-        rule[i] = r
-        if not df_holds(q, new, speed, va_next, c):
-            ti.atomic_add(bad[0], 1)
+    if ti.static(lane_wise):
+        for b in range(n_buckets):
+            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+            wraps = run_wraps(row, x0, x1, nc, PERIODIC)
+            for block in range((a1 - a0 + LANES - 1) // LANES):
+                i0 = a0 + block * LANES
+                s = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
+                a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _no_neighbours(LANES, c)
+                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+                for r in range(3):
+                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, PERIODIC)
+                    for h in range(2):
+                        begin = ti.select(h == 0, b0, b1)
+                        end = ti.select(h == 0, e0, e1)
+                        if wraps:
+                            a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _scan(
+                                begin, end, s, px, py, a_cos, a_sin, a_count, c_x, c_y, c_count, best,
+                                best_id, away_x, away_y, c, zones, True, id_sorted, pos_sorted, payload)
+                        else:
+                            a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _scan(
+                                begin, end, s, px, py, a_cos, a_sin, a_count, c_x, c_y, c_count, best,
+                                best_id, away_x, away_y, c, zones, False, id_sorted, pos_sorted, payload)
+                outside = 0  # one atomic add to the shared counter a block, not one an agent
+                for k in ti.static(range(LANES)):
+                    if i0 + k < a1:
+                        outside += _advance(i0 + k, t, seed, c, out_set, in_set, ti.Vector([va_x, va_y]),
+                                            ti.Vector([next_x, next_y]), a_cos[k], a_sin[k], a_count[k], c_x[k],
+                                            c_y[k], c_count[k], best[k], ti.Vector([away_x[k], away_y[k]]), order,
+                                            id_sorted, pos_sorted, f_old, i_old, pos_new, f_new, i_new, ids_new,
+                                            rule)
+                if outside:
+                    ti.atomic_add(bad[0], outside)
+    else:
+        for s in range(n):
+            a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _no_neighbours(1, c)
+            px = ti.Vector([pos_sorted[0, s]])
+            py = ti.Vector([pos_sorted[1, s]])
+            cell = load_cell(coords_sorted, s, 2)
+            for o in range(ti.static(span_count(PERIODIC, 2))):
+                lo, hi, _ = stencil_span(cell, o, nc, n_buckets, PERIODIC, 2)
+                a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _scan(
+                    start[lo], start[hi], ti.Vector([s]), px, py, a_cos, a_sin, a_count, c_x, c_y, c_count, best,
+                    best_id, away_x, away_y, c, zones, True, id_sorted, pos_sorted, payload)
+            if _advance(s, t, seed, c, out_set, in_set, ti.Vector([va_x, va_y]), ti.Vector([next_x, next_y]),
+                        a_cos[0], a_sin[0], a_count[0], c_x[0], c_y[0], c_count[0], best[0],
+                        ti.Vector([away_x[0], away_y[0]]), order, id_sorted, pos_sorted, f_old, i_old, pos_new, f_new,
+                        i_new, ids_new, rule):
+                ti.atomic_add(bad[0], 1)
     if bad[0] == 0 and tau[0] < 0:
         tau[0] = t + 1
 
@@ -301,6 +386,7 @@ class Formation(Model):
         self.consts = ti.ndarray(ftype, N_CONSTS)
         self.consts.from_numpy(self._constants().astype(real))
         self.grid = CellGrid(n, 2, "periodic", params.world, params.radius, real)
+        self.lane_wise = engine.arch == "cpu"  # see _step
         self._zones = int(params.strategy[2])
         self._out_set, self._in_set = TABLE_1[int(params.strategy[4])]
         self.set_state(ref.initial_state(params, seed), 0)
@@ -397,10 +483,10 @@ class Formation(Model):
             self.grid.build(self.pos[a], self.ids[a])
             va, va_next = self.va_position(t), self.va_position(t + 1)
             _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
-                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, self.grid.start,
-                  self.grid.order, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted,
-                  self.payload, self.f[a], self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b],
-                  self.rule, self.bad, self.tau)
+                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, self.lane_wise,
+                  self.grid.start, self.grid.runs() if self.lane_wise else self.grid.start, self.grid.order,
+                  self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.f[a],
+                  self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
             self.cur = b
             self.step_index += 1
 
