@@ -44,12 +44,26 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
 
 
 @pytest.mark.parametrize("args,key", [(["--sizes", "0"], "--sizes"), (["--models", "boids"], "--models"),
-                                      (["--states", "hot"], "--states")])
+                                      (["--states", "hot"], "--states"), (["--set", "params.boxx=3"], "params.boxx"),
+                                      (["--set", "params.n=3"], "--set"), (["--set", "engine.threads=1"], "--set")])
 def test_bench_bad_input_is_one_line(args, key):
     proc = subprocess.run([sys.executable, "-m", "tflock", "bench", *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in proc.stderr
+
+
+def test_bench_overrides_scale_with_n():
+    """--set changes the default config at its own N; the lengths then scale with N (the density is kept)."""
+    from tflock.bench import BenchCase, case_config
+    from tflock.config import load_config
+
+    case = BenchCase(model="potential", n=1000, overrides=("params.box=240", "params.radius=1.5"))
+    config = load_config(case_config(case))
+    assert config.params.n == 1000 and config.params.radius == 1.5
+    assert config.params.box == pytest.approx(240 * (1000 / 100_000) ** 0.5)
+    nested = BenchCase(model="formation", n=24, overrides=("params.weights.align=2.0",))
+    assert load_config(case_config(nested)).params.weights.align == 2.0
 
 
 @pytest.mark.parametrize("n,box", [(1500, 27.4), (40, 2.5)])  # 27 cells a side; under 3 cells: one cell

@@ -58,6 +58,7 @@ class BenchCase:
     log: bool = False  # time a logged frame (max_agents drawn) on top of the step
     log_agents: int = 50_000
     peers: bool = True
+    overrides: tuple[str, ...] = ()  # "params.key=value" applied to the default config before N is set
 
 
 @dataclass
@@ -86,6 +87,7 @@ class BenchResult:
     def row(self) -> dict[str, Any]:
         """Flat dict for CSV / tables."""
         out = {**asdict(self.case), **{k: v for k, v in asdict(self).items() if k not in ("case", "peers")}}
+        out["overrides"] = " ".join(self.case.overrides)
         for name, peer in self.peers.items():
             for key, value in peer.items():
                 out[f"{name}_{key}"] = value
@@ -97,16 +99,32 @@ LENGTHS = ("box", "world", "init_length", "init_width")
 
 
 def case_config(case: BenchCase) -> dict[str, Any]:
-    """The model's default config at N = case.n, same density (lengths scaled by (n / n0)^(1/dim))."""
+    """The model's default config (with the case's overrides) at N = case.n, same density (lengths scaled by
+    (n / n0)^(1/dim)). Raises :class:`tflock.config.ConfigError` on a bad override."""
     from tflock.config import load_config
 
-    params = load_config(model=case.model).params
+    params = load_config(model=case.model, overrides=list(case.overrides)).params
     scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
     lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
     return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 1,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
-            "params": {"n": case.n, **lengths},
+            "params": {**_override_tree(case.overrides)["params"], "n": case.n, **lengths},
             "log": {"max_agents": case.log_agents, "max_edges": 0, "every": 1, "metrics_every": 1}}
+
+
+def _override_tree(overrides: Iterable[str]) -> dict[str, Any]:
+    """{"params": {...}} from "params.key=value" overrides (dotted keys nest)."""
+    from tflock.config import parse_override
+
+    tree: dict[str, Any] = {"params": {}}
+    for expr in overrides:
+        key, value = parse_override(expr)
+        *parents, leaf = key.split(".")
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
 
 
 def device_bytes(obj: object, seen: set[int] | None = None, depth: int = 0) -> int:
@@ -266,7 +284,7 @@ def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(f"bench case {case.model} n={case.n} {case.state} failed: {tail}")
     data = json.loads(proc.stdout.strip().splitlines()[-1])
-    data["case"] = BenchCase(**data["case"])
+    data["case"] = case
     return BenchResult(**data)
 
 
@@ -370,7 +388,8 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
 
 
 def _worker(argv: list[str]) -> None:
-    case = BenchCase(**json.loads(argv[0]))
+    fields = json.loads(argv[0])
+    case = BenchCase(**{**fields, "overrides": tuple(fields.get("overrides", ()))})
     result = run_case(case)
     print(json.dumps({**asdict(result), "case": asdict(case)}))
 

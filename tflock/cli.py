@@ -300,7 +300,11 @@ def _refuse_bench_cases(todo: list, prefix: Path) -> None:
 
     for case in todo:
         try:
-            check_memory(load_config(case_config(case)))
+            config = case_config(case)
+        except ConfigError as e:
+            fail(f"--set: {case.model}: {e}")
+        try:
+            check_memory(load_config(config))
         except ConfigError as e:
             fail(f"--sizes: {case.model} at n = {case.n:,}: {e}")
     try:
@@ -324,6 +328,9 @@ def bench(
         "Time the peers: the NumPy reference, and the cKDTree and Numba steps where scipy / numba are installed "
         "(pip install tflock[bench])."))] = True,
     prefix: Annotated[Path | None, typer.Option("--out", help="Results prefix (.json/.csv/.png added).")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", "-s", help=(
+        "Override a model parameter of the default config, e.g. params.box=240 (lengths then scale with N to "
+        "keep its density)."))] = None,
 ) -> None:
     """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under benchmarks/."""
     from tflock.bench import STATES, BenchCase, cases, run_in_subprocess, write_results
@@ -339,10 +346,15 @@ def bench(
         fail(f"--arch / --precision: allowed cpu|cuda|vulkan|auto and f32|f64, got {arch!r} / {precision!r}")
     if repeats < 1 or develop_steps < 0:
         fail("--repeats must be >= 1 and --develop-steps >= 0")
+    overrides = tuple(set_ or ())
+    for expr in overrides:
+        if not expr.startswith("params.") or expr.startswith("params.n="):
+            fail(f"--set: only model parameters other than params.n (set by --sizes) may change, got {expr!r}")
     todo: list[BenchCase] = []
     for t in _int_list(threads, "threads") if threads != "0" else [0]:
         todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
-                      repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers)
+                      repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers,
+                      overrides=overrides)
     prefix = prefix or Path("benchmarks") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
     _refuse_bench_cases(todo, prefix)
     results = []
