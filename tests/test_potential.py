@@ -217,6 +217,8 @@ def test_step_matches_reference_in_both_layouts(engine):
 
     cfg = config(**CASES["switching-2d"])
     model = Potential(cfg.params, cfg.seed, engine)
+    if not model.grid.bounded:
+        pytest.skip("GPU arches keep the hashed grid")
     state = model.state()
     for layout, straggler in ((BOUNDED, None), (OPEN, 1e5)):
         x, v = state["x"].copy(), state["v"].copy()

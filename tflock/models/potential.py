@@ -11,7 +11,8 @@ whose gradient is grad_{r_i} V(|r_ij|) = 2 (|r_ij|^2 - d^2) / |r_ij|^4 r_ij, r_i
   vanish beyond R. Neighbours come from an open-space cell grid laid over the swarm's bounding box (hashed when a
   straggler spreads that box too thin; :class:`tflock.neighbors.CellGrid`), the state is kept in cell order
   (``ids`` names the agent at each element), as in the Vicsek model. On the CPU a 2D step takes runs of cells 8
-  agents at a time (:func:`_step_lanes`); 3D and GPU arches visit each agent's stencil alone.
+  agents at a time (:func:`_step_lanes`) and 3D visits each agent's stencil alone; GPU arches keep the hashed
+  grid (the layout over the bounding box has not run on one yet).
 - fixed topology (section 4): a connected graph (:mod:`tflock.models.potential_graphs`) in CSR form, neighbours
   regardless of distance; the state stays in agent order.
 
@@ -278,7 +279,8 @@ class Potential(GridModel):
         self.valency = ti.ndarray(ti.i32, n)
         self.energy = ti.ndarray(ftype, n)
         self.nearest = ti.ndarray(ftype, n)
-        self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=True)
+        # the bounded layout runs on the CPU only: GPU arches keep the hash, checked there on an H100
+        self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=engine.arch == "cpu")
         self.lane_wise = dim == 2 and engine.arch == "cpu" and self.switching  # see _step_lanes
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1
