@@ -525,13 +525,15 @@ class CellGrid:
         self._runs_fresh = False
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
-        """A bounded grid's layout for these positions: cells of side R (a hair more, so that rounding never puts
-        two agents within R two cells apart) over the bounding box's cube, or the hash when they are too many."""
+        """A bounded grid's layout for these positions: cells of side R over the bounding box's cube, or the hash
+        when they are too many. The side has a margin of a few rounding errors of the coordinates within the box
+        (1e-6 of its extent: 8 float32 ulps), so that rounding never puts two agents within R two cells apart."""
         h = self._hashed
         _bounds(self.n, h.dim, pos, self._bound_blocks, self.bounds)
         lo, hi = self.bounds.to_numpy().astype(np.float64)
-        side = self.radius * (1.0 + 1e-6)
-        per_side = float(np.max(hi - lo)) / side + 1  # a float first: a far-flung or non-finite swarm overflows ints
+        extent = float(np.max(hi - lo))
+        side = self.radius * (1.0 + 1e-6) + 1e-6 * extent
+        per_side = extent / side + 1  # a float first: a far-flung or non-finite swarm overflows ints
         if not per_side <= h.n_buckets or int(per_side) ** h.dim > h.n_buckets:
             return h
         per_side = int(per_side)
