@@ -234,8 +234,9 @@ def test_step_matches_reference_in_both_layouts(engine):
             x, v = expected_x, expected_v
 
 
-def test_lane_wise_step_equals_per_agent_step(engine):
-    """The CPU's lane-wise 2D step (runs of cells, 8 agents at a time) adds the same terms in the same order as the
+@pytest.mark.parametrize("dim", [2, 3])
+def test_lane_wise_step_equals_per_agent_step(engine, dim):
+    """The CPU's lane-wise step (runs of cells, 8 agents at a time) adds the same terms in the same order as the
     per-agent kernel on the same bounded grid: equal states (to an ulp or two, where the compiler fuses
     differently), in a dense clump (cells of several lane blocks) and a sparse field (runs of several cells)."""
     import taichi as ti
@@ -246,22 +247,23 @@ def test_lane_wise_step_equals_per_agent_step(engine):
         pytest.skip("the lane-wise step is the CPU's")
     rng = np.random.default_rng(1)
     n = 500
-    x = np.concatenate([rng.random((400, 2)) * 40.0, 15.0 + rng.random((100, 2)) * 2.0])
-    v = rng.normal(size=(n, 2))
-    cfg = config(n=n, box=40.0, topology="switching", min_separation=0.0)
+    side = 40.0 if dim == 2 else 12.0
+    x = np.concatenate([rng.random((400, dim)) * side, 5.0 + rng.random((100, dim)) * 2.0])
+    v = rng.normal(size=(n, dim))
+    cfg = config(n=n, box=side, dim=dim, topology="switching", min_separation=0.0)
     model = Potential(cfg.params, cfg.seed, engine)
     results = []
     for lane_wise in (True, False):
         model.set_state({"x": x, "v": v}, 0)
         model._ensure_grid()
         grid, g, p = model.grid, model.grid.geometry, cfg.params
-        _sort_velocities(n, 2, grid.order, model.vel, model.scratch)
+        _sort_velocities(n, dim, grid.order, model.vel, model.scratch)
         args = (p.radius**2, p.desired_distance**2, p.dt)
         if lane_wise:
-            _step_lanes(g.total_buckets, g.cells_per_side, *args, g.boundary, grid.start, grid.runs(),
+            _step_lanes(g.total_buckets, g.cells_per_side, *args, dim, g.boundary, grid.start, grid.runs(),
                         grid.id_sorted, grid.pos_sorted, model.scratch, model.pos, model.vel, model.ids)
         else:
-            _step_switching(n, *args, 2, g.boundary, g.cells_per_side, g.n_buckets, grid.start, grid.mixed,
+            _step_switching(n, *args, dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start, grid.mixed,
                             grid.id_sorted, grid.pos_sorted, grid.coords_sorted, model.scratch, model.pos, model.vel,
                             model.ids)
         ti.sync()

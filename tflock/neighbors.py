@@ -397,24 +397,31 @@ def run_at(b, nc, start: ti.template(), run_end: ti.template()):
 
 
 @ti.func
-def run_spans(row, x0, x1, r, nc, start: ti.template(), boundary: ti.template()):
-    """Row r (0, 1, 2 for y - 1, y, y + 1) of the stencil of the run of cells [x0, x1) in grid row `row` of a box
-    grid: at most two spans of sorted agents [b0, e0), [b1, e1) (empty ones have b == e).
+def run_spans(row, x0, x1, r, nc, start: ti.template(), boundary: ti.template(), dim: ti.template()):
+    """Row r of the stencil of the run of cells [x0, x1) in grid row `row` of a box grid: at most two spans of
+    sorted agents [b0, e0), [b1, e1) (empty ones have b == e). The stencil has 3^(dim - 1) rows, r's base-3 digits
+    giving the offsets -1, 0, +1 along y, then z.
 
     The cells x0 - 1 .. x1 of a row are contiguous; a periodic row wraps into a second span at an edge and is
     visited once whole when the window covers it; a box with fewer than 3 rows visits each distinct row once, as
     :func:`stencil_span` does. A reflecting box skips rows outside and clips the window.
     """
-    y = row % nc
-    t = y + r - 1
     ok = True
-    if ti.static(boundary == PERIODIC):
-        if nc < 3 and (r - 1 < 0 or r - 1 >= nc):
+    shift = 0  # from `row` to the stencil's row, in rows
+    stride = 1
+    for k in ti.static(range(1, dim)):
+        off = (r // ti.static(3 ** (k - 1))) % 3 - 1
+        c = (row // stride) % nc
+        t = c + off
+        if ti.static(boundary == PERIODIC):
+            if nc < 3 and (off < 0 or off >= nc):
+                ok = False
+            t = (t + nc) % nc
+        elif t < 0 or t >= nc:
             ok = False
-        t = (t + nc) % nc
-    elif t < 0 or t >= nc:
-        ok = False
-    base = (row - y + t) * nc
+        shift += (t - c) * stride
+        stride *= nc
+    base = (row + shift) * nc
     lo = x0 - 1
     hi = x1 + 1
     b0 = 0

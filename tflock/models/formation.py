@@ -255,7 +255,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                 px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
                 py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
                 for r in range(3):
-                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, PERIODIC)
+                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, PERIODIC, 2)
                     for h in range(2):
                         begin = ti.select(h == 0, b0, b1)
                         end = ti.select(h == 0, e0, e1)

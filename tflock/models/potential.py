@@ -10,9 +10,9 @@ whose gradient is grad_{r_i} V(|r_ij|) = 2 (|r_ij|^2 - d^2) / |r_ij|^4 r_ij, r_i
 - switching topology (section 5): N_i = {j : |r_ij| < R}, d < R; the saturated U(r) = V(min(r, R)) makes the force
   vanish beyond R. Neighbours come from an open-space cell grid laid over the swarm's bounding box (hashed when a
   straggler spreads that box too thin; :class:`tflock.neighbors.CellGrid`), the state is kept in cell order
-  (``ids`` names the agent at each element), as in the Vicsek model. On the CPU a 2D step takes runs of cells 8
-  agents at a time (:func:`_step_lanes`) and 3D visits each agent's stencil alone; GPU arches keep the hashed
-  grid (the layout over the bounding box has not run on one yet).
+  (``ids`` names the agent at each element), as in the Vicsek model. On the CPU a step takes runs of cells 8
+  agents at a time (:func:`_step_lanes`); GPU arches keep the hashed grid (the layout over the bounding box has
+  not run on one yet) and visit each agent's stencil alone.
 - fixed topology (section 4): a connected graph (:mod:`tflock.models.potential_graphs`) in CSR form, neighbours
   regardless of distance; the state stays in agent order.
 
@@ -42,7 +42,6 @@ from tflock.neighbors import (
     BOUNDED,
     LANES,
     CellGrid,
-    lanes,
     load_cell,
     load_vec,
     run_at,
@@ -124,52 +123,50 @@ def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.templ
 
 
 @ti.func
-def _accelerations(begin, end, s, px, py, vx, vy, ux, uy, r2cut, d2, pos_sorted: ti.template(),
+def _accelerations(begin, end, s, p, v, u, r2cut, d2, dim: ti.template(), pos_sorted: ti.template(),
                    vel_sorted: ti.template()):
-    """Add the terms of u_i (eq. 3) of the candidates [begin, end) within R to each lane's sums (2D)."""
+    """Add the terms of u_i (eq. 3) of the candidates [begin, end) within R to each lane's sums: p, v, u are
+    (dim, LANES) matrices, a column an agent (at slot s[q] for column q)."""
     for k in range(begin, end):
-        dx = pos_sorted[0, k] - px
-        dy = pos_sorted[1, k] - py
-        r2 = dx * dx + dy * dy
+        d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+        r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
+        for a in ti.static(range(1, dim)):  # summed in the order of the per-agent kernel's norm_sqr
+            r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
         inside = (r2 < r2cut) & (s != k)
         coef = 2.0 * (r2 - d2) / (r2 * r2)  # itself: 0 / 0, never added
-        ux += ti.select(inside, (vel_sorted[0, k] - vx) + coef * dx, 0.0)
-        uy += ti.select(inside, (vel_sorted[1, k] - vy) + coef * dy, 0.0)
-    return ux, uy
+        for a in ti.static(range(dim)):
+            for q in ti.static(range(LANES)):
+                u[a, q] += ti.select(inside[q], (vel_sorted[a, k] - v[a, q]) + coef[q] * d[a, q], 0.0)
+    return u
 
 
 @ti.kernel
-def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: float, layout: ti.template(),
-                start: ti.types.ndarray(), run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-                pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(), pos: ti.types.ndarray(),
-                vel: ti.types.ndarray(), ids: ti.types.ndarray()):
-    """One 2D step on the CPU, ``LANES`` agents at a time: the agents of each run of cells (:meth:`CellGrid.runs`)
-    against every candidate of the run's 3 x (width + 2) cells, then the move (as :func:`_step_switching`, term for
-    term and in the same order: a run's wider window only adds candidates beyond R, which are not added)."""
+def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(),
+                layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
+                pos: ti.types.ndarray(), vel: ti.types.ndarray(), ids: ti.types.ndarray()):
+    """One step on the CPU, ``LANES`` agents at a time: the agents of each run of cells (:meth:`CellGrid.runs`)
+    against every candidate of the run's 3^(dim - 1) x (width + 2) cells, then the move (as
+    :func:`_step_switching`, term for term and in the same order: a run's wider window only adds candidates beyond
+    R, which are not added)."""
     for b in range(total_buckets):
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
         for block in range((a1 - a0 + LANES - 1) // LANES):
             i0 = a0 + block * LANES
             s = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
-            px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
-            py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
-            vx = lanes(vel_sorted, 0, i0, a1 - 1, LANES)
-            vy = lanes(vel_sorted, 1, i0, a1 - 1, LANES)
-            ux = ti.Vector([0.0] * LANES)
-            uy = ti.Vector([0.0] * LANES)
-            for r in range(3):
-                begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout)
-                ux, uy = _accelerations(begin, end, s, px, py, vx, vy, ux, uy, r2cut, d2, pos_sorted, vel_sorted)
-            vx += dt * ux
-            vy += dt * uy
-            px += dt * vx
-            py += dt * vy
+            p = ti.Matrix([[pos_sorted[a, s[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+            v = ti.Matrix([[vel_sorted[a, s[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+            u = p * 0.0
+            for r in range(ti.static(3 ** (dim - 1))):
+                begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                u = _accelerations(begin, end, s, p, v, u, r2cut, d2, dim, pos_sorted, vel_sorted)
+            v += dt * u
+            p += dt * v
             for k in ti.static(range(LANES)):
                 if i0 + k < a1:
-                    vel[0, i0 + k] = vx[k]
-                    vel[1, i0 + k] = vy[k]
-                    pos[0, i0 + k] = px[k]
-                    pos[1, i0 + k] = py[k]
+                    for a in ti.static(range(dim)):
+                        vel[a, i0 + k] = v[a, k]
+                        pos[a, i0 + k] = p[a, k]
                     ids[i0 + k] = id_sorted[i0 + k]
 
 
@@ -281,7 +278,7 @@ class Potential(GridModel):
         self.nearest = ti.ndarray(ftype, n)
         # the bounded layout runs on the CPU only: GPU arches keep the hash, checked there on an H100
         self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=engine.arch == "cpu")
-        self.lane_wise = dim == 2 and engine.arch == "cpu" and self.switching  # see _step_lanes
+        self.lane_wise = engine.arch == "cpu" and self.switching  # see _step_lanes
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1
         if not self.switching:
@@ -361,9 +358,9 @@ class Potential(GridModel):
                 g = grid.geometry  # this build's layout: bounded or hashed
                 _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
                 if self.lane_wise and g.boundary == BOUNDED:
-                    _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, g.boundary, grid.start,
-                                grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos, self.vel,
-                                self.ids)
+                    _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, self.dim, g.boundary,
+                                grid.start, grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos,
+                                self.vel, self.ids)
                 else:
                     _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.boundary, g.cells_per_side,
                                     g.n_buckets, grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted,

@@ -271,7 +271,7 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
             acc_b = ti.Vector([0.0] * LANES)
             count = ti.Vector([0.0] * LANES)
             for r in range(3):
-                b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary)
+                b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
                 for h in range(2):
                     begin = ti.select(h == 0, b0, b1)
                     end = ti.select(h == 0, e0, e1)
