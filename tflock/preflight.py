@@ -39,7 +39,7 @@ def _vicsek(p: Any) -> tuple[float, float]:
 
 def _potential(p: Any) -> tuple[float, float]:  # pos, vel, scratch (+ pos_next), energy, nearest; ids, where,
     fixed = p.topology == "fixed"  # valency (+ CSR offsets and ~2 neighbour entries on a fixed graph; the runs of
-    lane_wise = 3 if p.dim == 2 and not fixed else 0  # cells of the 2D switching step, one per bucket)
+    lane_wise = 0 if fixed else 3  # cells of the switching step, one per bucket)
     return (4 if fixed else 3) * p.dim + 2, (6 if fixed else 3) + lane_wise
 
 
