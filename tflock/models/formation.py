@@ -49,7 +49,7 @@ import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.frame import Frame, Marker, WorldSpec
-from tflock.guard import Guarded, first_non_finite
+from tflock.guard import NO_AGENT, Guarded, first_non_finite
 from tflock.metrics import BLOCK, n_blocks
 from tflock.models.base import Model
 from tflock.models.formation_params import (
@@ -90,7 +90,6 @@ THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
 IN_FLAG, RAMP_START = range(2)
 RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
 VA_COLOR = (255, 210, 0)
-NO_AGENT = 2**31 - 1  # an id above every agent's
 SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
 
 
