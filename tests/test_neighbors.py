@@ -187,9 +187,9 @@ def bounded_grid_degrees(engine, x, radius):
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("radius", [0.7, 2.0])
 def test_bounded_layout_matches_brute_force(engine, dim, radius):
-    """A compact open-space swarm is re-binned over its bounding box (cells of side R from its lower corner, a
-    row-major block like a box's); one far straggler makes that block too large, and the build falls back to the
-    hash. Both find exactly the brute-force neighbours, agents on the box's faces included."""
+    """A compact open-space swarm's cells are stored row-major over their bounding box (a block like a box's); one
+    far straggler makes that block too large, and the build falls back to the hash. Both find exactly the
+    brute-force neighbours, agents on the box's faces included."""
     from tflock.neighbors import BOUNDED, OPEN
 
     rng = np.random.default_rng(dim * 10 + int(radius * 10))
@@ -198,11 +198,12 @@ def test_bounded_layout_matches_brute_force(engine, dim, radius):
     x[:10, 0] = x[:10, 0].min()  # agents on the lower and upper faces
     x[10:20, 1] = x[10:20, 1].max()
     geometry, degree = bounded_grid_degrees(engine, x, radius)
-    extent = float((x.max(axis=0) - x.min(axis=0)).max())
-    assert geometry.boundary == BOUNDED and geometry.cells_per_side == int(extent / radius) + 1
+    cells = np.floor(x.astype(engine.real) / engine.real(radius))
+    assert geometry.boundary == BOUNDED and geometry.cells_per_side == int((cells.max(0) - cells.min(0)).max()) + 1
     assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "open", 1.0).sum(axis=1))
-    for far in (1e5, 1e30):  # a straggler: the cube over the bounding box needs more cells than the table's buckets
-        x[0] = far  # (1e30: more than an integer holds)
+    for far in (1e5, 1e18):  # a straggler: the cube over the bounding box needs more cells than the table's buckets
+        x[0] = far  # (1e18: its cell coordinate overflows an int32)
         geometry, degree = bounded_grid_degrees(engine, x, radius)
         assert geometry.boundary == OPEN
         assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "open", 1.0).sum(axis=1))
+

@@ -12,10 +12,12 @@ an agent's cell.
   query keeps only agents whose cell coordinates equal the visited cell (no double counting, no box assumed).
   The build marks the buckets that hold more than one cell (``mixed``): a bucket of one cell is kept or skipped
   whole after one test, and only the agents of a mixed bucket are tested one by one.
-- open space, ``bounded`` grids: each build first takes the swarm's bounding box and, when a cube of cells of side
-  R over it fits in the hash table's buckets, lays those cells out row-major from its lower corner (layout
-  ``BOUNDED``, queried as a reflecting box is). Neighbouring cells are then neighbours in memory and a stencil row
-  is one span, as in a box; a swarm spread too thin for that (stragglers far out) falls back to the hash.
+- open space, ``bounded`` grids: each build first takes the bounding box of the agents' cells and, when a cube of
+  cells over it fits in the hash table's buckets, stores those same cells row-major from its lower corner instead
+  of hashing them (layout ``BOUNDED``, queried as a reflecting box is). Neighbouring cells are then neighbours in
+  memory and a stencil row is one span, as in a box; a swarm spread too thin for that (stragglers far out) falls
+  back to the hash. The cells, and the order in which a query meets them and their agents, are the hash's (the
+  two layouts' kernels are compiled apart, though, and fast math may round their sums differently).
 - replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
   shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
   Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
@@ -86,13 +88,13 @@ def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, re
 
 @ti.func
 def cell_coords(p, origin, cell_size, nc, boundary: ti.template()):
-    """Integer cell coordinates of position p (clamped into the grid for box and bounded layouts, whose cells
-    start at `origin`: zero for a box, the bounding box's lower corner for a bounded grid)."""
+    """Integer cell coordinates of position p (clamped into the grid for box layouts). Open space's cells are
+    floor(p / R); a bounded grid counts them from `origin`, the lowest cell of its bounding box."""
     c = ti.Vector([0] * p.n, dt=ti.i32)
     if ti.static(boundary == OPEN):
         c = ti.cast(ti.floor(p / cell_size), ti.i32)
-    elif ti.static(boundary == BOUNDED):  # p >= origin: truncation is the floor
-        c = ti.math.clamp(ti.cast((p - origin) / cell_size, ti.i32), 0, nc - 1)
+    elif ti.static(boundary == BOUNDED):
+        c = ti.math.clamp(ti.cast(ti.floor(p / cell_size), ti.i32) - origin, 0, nc - 1)
     else:  # coordinates are >= 0: truncation is the floor, and cheaper
         c = ti.math.clamp(ti.cast(p / cell_size, ti.i32), 0, nc - 1)
     return c
@@ -237,13 +239,13 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
+           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), origin: ti.types.ndarray(),
            by_rank: ti.template()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
-        origin = ti.Vector([bounds[0, d] for d in ti.static(range(dim))])
-        local = cell_coords(load_vec(pos, e, dim), origin, cell_size, nc, boundary)
+        corner = ti.Vector([origin[d] for d in ti.static(range(dim))], dt=ti.i32)
+        local = cell_coords(load_vec(pos, e, dim), corner, cell_size, nc, boundary)
         c = ti.Vector([0] * (dim + 1), dt=ti.i32)
         for d in ti.static(range(dim)):
             c[d] = local[d]
@@ -322,17 +324,18 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
 
 
 @ti.kernel
-def _bounds(n: ti.i32, dim: ti.template(), pos: ti.types.ndarray(), partial: ti.types.ndarray(),
-            bounds: ti.types.ndarray()):
-    """The bounding box of n positions: bounds[0] the lower corner, bounds[1] the upper (block minima and maxima in
-    parallel, then a serial pass over the blocks; no atomics on one shared address)."""
+def _cell_bounds(n: ti.i32, dim: ti.template(), cell_size: float, pos: ti.types.ndarray(),
+                 partial: ti.types.ndarray(), bounds: ti.types.ndarray()):
+    """The bounding box of n agents' open-space cells (floor(p / R), as :func:`cell_coords` computes them):
+    bounds[0] its lowest cell, bounds[1] its highest. Block extrema in parallel, then a serial pass over the blocks
+    (no atomics on one shared address)."""
     for blk in range(partial.shape[1]):
-        lo = load_vec(pos, blk * SCAN_BLOCK, dim)
+        lo = cell_coords(load_vec(pos, blk * SCAN_BLOCK, dim), 0, cell_size, 0, OPEN)
         hi = lo
         for e in range(blk * SCAN_BLOCK + 1, ti.min(n, (blk + 1) * SCAN_BLOCK)):
-            p = load_vec(pos, e, dim)
-            lo = ti.min(lo, p)
-            hi = ti.max(hi, p)
+            c = cell_coords(load_vec(pos, e, dim), 0, cell_size, 0, OPEN)
+            lo = ti.min(lo, c)
+            hi = ti.max(hi, c)
         for d in ti.static(range(dim)):
             partial[d, blk] = lo[d]
             partial[dim + d, blk] = hi[d]
@@ -475,10 +478,10 @@ class CellGrid:
     gives the slot of each agent. With ``replicas`` > 1 the n agents are that many independent systems of
     n / replicas agents each (agent id = replica * n / replicas + local id) that never see each other.
 
-    ``bounded`` (open space, one replica): each build lays cells over the swarm's bounding box when they fit (see
-    the module); ``geometry`` is then the layout of the last build, so kernels read it after building. A batch
-    of replicas keeps the hash, which lays each replica out as its lone run does only when the layout does not
-    depend on the positions.
+    ``bounded`` (open space, one replica): each build stores the cells row-major over their bounding box when they
+    fit (see the module); ``geometry`` is then the layout of the last build, so kernels read it after building. A
+    batch of replicas keeps the hash: a lone run must give the batch's numbers bit for bit, and kernels compiled
+    for two layouts may round differently (Vicsek and adaptive, which run batches, keep the hash for that reason).
     """
 
     def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type,
@@ -509,10 +512,11 @@ class CellGrid:
         self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
         self.run_end: ti.Ndarray | None = None  # see runs(); allocated on first use (CPU lane-wise kernels only)
         self._runs_fresh = False
-        # a bounded grid's bounding box (lower corner: its origin) and the block extrema that give it; zeros (the
-        # origin of a box) otherwise
-        self.bounds = ti.ndarray(ftype, (2, dim))
-        self._bound_blocks = ti.ndarray(ftype, (2 * dim, (n + SCAN_BLOCK - 1) // SCAN_BLOCK if self.bounded else 1))
+        # a bounded grid's bounding box of cells, the block extrema that give it, and its lowest cell (the origin of
+        # its cell coordinates; unused by other layouts)
+        self.bounds = ti.ndarray(ti.i32, (2, dim))
+        self._bound_blocks = ti.ndarray(ti.i32, (2 * dim, (n + SCAN_BLOCK - 1) // SCAN_BLOCK if self.bounded else 1))
+        self.origin = ti.ndarray(ti.i32, dim)
         # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
@@ -526,25 +530,23 @@ class CellGrid:
         _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
+               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.origin,
                self.rank_sort)
         self._slots_fresh = False
         self._runs_fresh = False
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
-        """A bounded grid's layout for these positions: cells of side R over the bounding box's cube, or the hash
-        when they are too many. The side has a margin of a few rounding errors of the coordinates within the box
-        (1e-6 of its extent: 8 float32 ulps), so that rounding never puts two agents within R two cells apart."""
+        """A bounded grid's layout for these positions: the hash's cells over their bounding box's cube, stored
+        row-major, or the hash itself when they are too many (a straggler far out; positions beyond the range of
+        integer cell coordinates, or not finite, give nonsense bounds that always are)."""
         h = self._hashed
-        _bounds(self.n, h.dim, pos, self._bound_blocks, self.bounds)
-        lo, hi = self.bounds.to_numpy().astype(np.float64)
-        extent = float(np.max(hi - lo))
-        side = self.radius * (1.0 + 1e-6) + 1e-6 * extent
-        per_side = extent / side + 1  # a float first: a far-flung or non-finite swarm overflows ints
-        if not per_side <= h.n_buckets or int(per_side) ** h.dim > h.n_buckets:
+        _cell_bounds(self.n, h.dim, h.cell_size, pos, self._bound_blocks, self.bounds)
+        lo, hi = self.bounds.to_numpy().astype(np.int64)
+        per_side = int(np.max(hi - lo)) + 1
+        if per_side < 1 or per_side**h.dim > h.n_buckets:
             return h
-        per_side = int(per_side)
-        return GridGeometry(h.dim, BOUNDED, side, per_side, per_side**h.dim, per_side**h.dim, self.n)
+        self.origin.from_numpy(lo.astype(np.int32))
+        return GridGeometry(h.dim, BOUNDED, h.cell_size, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.
