@@ -94,6 +94,8 @@ def cell_coords(p, origin, cell_size, nc, boundary: ti.template()):
     if ti.static(boundary == OPEN):
         c = ti.cast(ti.floor(p / cell_size), ti.i32)
     elif ti.static(boundary == BOUNDED):
+        # clamped: were this kernel and the bounds' pass to round a quotient apart, a cell one past the bounds moves
+        # onto the edge, still next to every cell within R of it
         c = ti.math.clamp(ti.cast(ti.floor(p / cell_size), ti.i32) - origin, 0, nc - 1)
     else:  # coordinates are >= 0: truncation is the floor, and cheaper
         c = ti.math.clamp(ti.cast(p / cell_size, ti.i32), 0, nc - 1)
