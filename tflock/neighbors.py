@@ -241,12 +241,12 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), origin: ti.types.ndarray(),
+           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
            by_rank: ti.template()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
-        corner = ti.Vector([origin[d] for d in ti.static(range(dim))], dt=ti.i32)
+        corner = ti.Vector([bounds[0, d] for d in ti.static(range(dim))], dt=ti.i32)  # a bounded grid's origin
         local = cell_coords(load_vec(pos, e, dim), corner, cell_size, nc, boundary)
         c = ti.Vector([0] * (dim + 1), dt=ti.i32)
         for d in ti.static(range(dim)):
@@ -514,11 +514,10 @@ class CellGrid:
         self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
         self.run_end: ti.Ndarray | None = None  # see runs(); allocated on first use (CPU lane-wise kernels only)
         self._runs_fresh = False
-        # a bounded grid's bounding box of cells, the block extrema that give it, and its lowest cell (the origin of
-        # its cell coordinates; unused by other layouts)
+        # a bounded grid's bounding box of cells (bounds[0], its lowest cell, is the origin of its cell coordinates;
+        # zeros, unused, for other layouts) and the block extrema that give it
         self.bounds = ti.ndarray(ti.i32, (2, dim))
         self._bound_blocks = ti.ndarray(ti.i32, (2 * dim, (n + SCAN_BLOCK - 1) // SCAN_BLOCK if self.bounded else 1))
-        self.origin = ti.ndarray(ti.i32, dim)
         # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
@@ -532,7 +531,7 @@ class CellGrid:
         _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.origin,
+               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
                self.rank_sort)
         self._slots_fresh = False
         self._runs_fresh = False
@@ -547,7 +546,6 @@ class CellGrid:
         per_side = int(np.max(hi - lo)) + 1
         if per_side < 1 or per_side**h.dim > h.n_buckets:
             return h
-        self.origin.from_numpy(lo.astype(np.int32))
         return GridGeometry(h.dim, BOUNDED, h.cell_size, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:
