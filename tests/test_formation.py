@@ -388,3 +388,32 @@ def test_lane_wise_step_equals_per_agent_step(engine, strategy):
     ulp = np.finfo(engine.real).eps
     for key in FLOATS:
         assert gap(a[key], b[key], key, p.world) <= 64 * ulp * 60.0, key
+
+
+def test_window_grid_across_the_torus_edge(engine):
+    """On the CPU the grid covers the window of cells the swarm occupies (the torus's own tiling of 60 x 60 has cells
+    12 wide here). A crowded swarm astride the torus's corner, stepped one step at a time from the oracle's state:
+    the window layout is used, and the lane-wise and per-agent steps both match the oracle."""
+    from tflock.space import WINDOW
+
+    p = params(strategy="S-2.2", n=300, world=60.0, init_length=20.0, init_width=20.0, fail_prob=0.1,
+               noise_deg=0.5)
+    rng = np.random.default_rng(7)
+    state = rf.initial_state(p, 3)
+    state["x"] = (rng.random((300, 2)) * 16.0 - 8.0) % 60.0
+    for lane_wise in (True, False):
+        model = Formation(p, 3, engine)
+        model.lane_wise = lane_wise
+        current = dict(state)
+        for t in range(5):
+            expected, rule = rf.formation_step(current, t, p, 3)
+            model.set_state(current, t)
+            model.advance(1)
+            if engine.arch == "cpu":
+                assert model.grid.geometry.boundary == WINDOW
+            got = model.state()
+            for key in FLOATS:
+                assert gap(got[key], expected[key], key, p.world) < TOL, f"{key} differs at step {t}"
+            assert np.array_equal(model.rules(), rule), f"rules differ at step {t}"
+            assert (rule == SEPARATION).sum() >= 30
+            current = expected

@@ -167,20 +167,20 @@ def test_lane_wise_sums_match_brute_force(engine, boundary, box, radius):
     assert np.allclose(sums[0], adjacency @ theta.astype(engine.real), rtol=rtol)
 
 
-def bounded_grid_degrees(engine, x, radius):
-    """A bounded open-space grid on positions x (n, dim): its layout and each agent's brute-force-comparable
-    degree (agent order) from the R-graph kernel."""
+def bounded_grid_degrees(engine, x, radius, boundary="open", box=1.0):
+    """A bounded open-space (or periodic-box) grid on positions x (n, dim): its layout and each agent's
+    brute-force-comparable degree (agent order) from the R-graph kernel."""
     from tflock.metrics import NeighbourGraph
 
     n, dim = x.shape
-    grid = CellGrid(n, dim, "open", 1.0, radius, engine.real, bounded=True)
+    grid = CellGrid(n, dim, boundary, box, radius, engine.real, bounded=True)
     pos = ti.ndarray(ti.f32 if engine.real == np.float32 else ti.f64, (dim, n))
     pos.from_numpy(np.ascontiguousarray(x.T, dtype=engine.real))
     ids = ti.ndarray(ti.i32, n)
     ids.from_numpy(np.arange(n, dtype=np.int32))
     grid.build(pos, ids)
     graph = NeighbourGraph(grid)
-    graph.compute(radius, 1.0)
+    graph.compute(radius, box)
     return grid.geometry, graph.degree.to_numpy()
 
 
@@ -207,3 +207,25 @@ def test_bounded_layout_matches_brute_force(engine, dim, radius):
         assert geometry.boundary == OPEN
         assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "open", 1.0).sum(axis=1))
 
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_window_layout_matches_brute_force(engine, dim):
+    """A compact swarm in a large periodic box is stored over the window of side-R cells it occupies, also astride
+    the box's edges (minimum-image distances); a swarm that leaves less than R of the torus outside its window
+    keeps the box's tiling. Both find exactly the brute-force neighbours."""
+    from tflock.space import PERIODIC, WINDOW
+
+    box, radius = 200.0, 1.5
+    rng = np.random.default_rng(dim)
+    x = rng.random((500, dim)) * 12.0 - 6.0  # around the corner 0: agents on both sides of every face
+    x %= box
+    x[:5, 0] = box - 1e-3  # just inside the upper face
+    geometry, degree = bounded_grid_degrees(engine, x, radius, "periodic", box)
+    assert geometry.boundary == WINDOW and geometry.cell_size == radius and geometry.cells_per_side <= 10
+    expected = ref.adjacency(x.astype(engine.real), radius, "periodic", box).sum(axis=1)
+    assert expected.max() >= 5 and np.array_equal(degree, expected)
+    x[5:60, 0] = np.linspace(0.0, box, 55, endpoint=False)  # a chain around the torus: no window fits
+    geometry, degree = bounded_grid_degrees(engine, x, radius, "periodic", box)
+    assert geometry.boundary == PERIODIC
+    assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "periodic", box).sum(axis=1))

@@ -18,6 +18,12 @@ an agent's cell.
   memory and a stencil row is one span, as in a box; a swarm spread too thin for that (stragglers far out) falls
   back to the hash. The cells, and the order in which a query meets them and their agents, are the hash's (the
   two layouts' kernels are compiled apart, though, and fast math may round their sums differently).
+- periodic box, ``bounded`` grids: a swarm that fills a small part of a large torus (the formation model's, around
+  its virtual agent) would get the box's capped tiling of few, wide cells. Each build instead takes the agents'
+  positions relative to one of them (minimum image), and when the window of side-R cells over them fits in the
+  tiling's buckets and leaves more than R of the torus outside it (so no pair meets through the edge in a way the
+  window cannot see), stores those cells row-major (layout ``WINDOW``, queried as a reflecting box is, distances
+  by minimum image); otherwise it keeps the tiling.
 - replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
   shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
   Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
@@ -47,12 +53,14 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import current_engine
-from tflock.space import OPEN, PERIODIC, boundary_code, displacement
+from tflock.space import OPEN, PERIODIC, WINDOW, boundary_code, displacement
 
 _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 #: layout code of a bounded open-space grid (see CellGrid): not a boundary (its displacement is the plain difference)
 BOUNDED = 3
+#: buckets a periodic box's window grid may use at least (see CellGrid)
+WINDOW_MIN_BUCKETS = 4096
 #: agents a lane-wise CPU kernel treats together: one AVX2 register of float32 (see :meth:`CellGrid.runs`)
 LANES = 8
 
@@ -87,16 +95,20 @@ def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, re
 
 
 @ti.func
-def cell_coords(p, origin, cell_size, nc, boundary: ti.template()):
+def cell_coords(p, origin, anchor, box, cell_size, nc, boundary: ti.template()):
     """Integer cell coordinates of position p (clamped into the grid for box layouts). Open space's cells are
-    floor(p / R); a bounded grid counts them from `origin`, the lowest cell of its bounding box."""
+    floor(p / R); a bounded grid counts them from `origin`, the lowest cell of its bounding box; a window grid
+    takes p relative to `anchor` (minimum image in the periodic box of side `box`) first."""
     c = ti.Vector([0] * p.n, dt=ti.i32)
     if ti.static(boundary == OPEN):
         c = ti.cast(ti.floor(p / cell_size), ti.i32)
-    elif ti.static(boundary == BOUNDED):
+    elif ti.static(boundary == BOUNDED or boundary == WINDOW):
+        q = p
+        if ti.static(boundary == WINDOW):
+            q = displacement(anchor, p, box, PERIODIC)
         # clamped: were this kernel and the bounds' pass to round a quotient apart, a cell one past the bounds moves
         # onto the edge, still next to every cell within R of it
-        c = ti.math.clamp(ti.cast(ti.floor(p / cell_size), ti.i32) - origin, 0, nc - 1)
+        c = ti.math.clamp(ti.cast(ti.floor(q / cell_size), ti.i32) - origin, 0, nc - 1)
     else:  # coordinates are >= 0: truncation is the floor, and cheaper
         c = ti.math.clamp(ti.cast(p / cell_size, ti.i32), 0, nc - 1)
     return c
@@ -236,18 +248,19 @@ def load_cell(coords: ti.template(), i, dim: ti.template()):
 
 
 @ti.kernel
-def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_replica: ti.i32, cell_size: float,
-           nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
+def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_replica: ti.i32, box: float,
+           cell_size: float, nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(),
+           dim: ti.template(),
            coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
            mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
-           by_rank: ti.template()):
+           anchor: ti.types.ndarray(), by_rank: ti.template()):
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
         corner = ti.Vector([bounds[0, d] for d in ti.static(range(dim))], dt=ti.i32)  # a bounded grid's origin
-        local = cell_coords(load_vec(pos, e, dim), corner, cell_size, nc, boundary)
+        local = cell_coords(load_vec(pos, e, dim), corner, load_vec(anchor, 0, dim), box, cell_size, nc, boundary)
         c = ti.Vector([0] * (dim + 1), dt=ti.i32)
         for d in ti.static(range(dim)):
             c[d] = local[d]
@@ -325,17 +338,29 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
             mixed[b] = flag
 
 
+@ti.func
+def _window_cell(p, anchor, box, cell_size, layout: ti.template()):
+    """Cell of p before a bounded (open space) or window (periodic box) grid's origin is subtracted."""
+    q = p
+    if ti.static(layout == WINDOW):
+        q = displacement(anchor, p, box, PERIODIC)
+    return cell_coords(q, 0, anchor, box, cell_size, 0, OPEN)
+
+
 @ti.kernel
-def _cell_bounds(n: ti.i32, dim: ti.template(), cell_size: float, pos: ti.types.ndarray(),
-                 partial: ti.types.ndarray(), bounds: ti.types.ndarray()):
-    """The bounding box of n agents' open-space cells (floor(p / R), as :func:`cell_coords` computes them):
-    bounds[0] its lowest cell, bounds[1] its highest. Block extrema in parallel, then a serial pass over the blocks
-    (no atomics on one shared address)."""
+def _cell_bounds(n: ti.i32, dim: ti.template(), box: float, cell_size: float, layout: ti.template(),
+                 pos: ti.types.ndarray(), partial: ti.types.ndarray(), bounds: ti.types.ndarray(),
+                 anchor: ti.types.ndarray()):
+    """The bounding box of n agents' cells, as :func:`cell_coords` computes them for `layout` with no origin: open
+    space's floor(p / R) (BOUNDED), or the same of the minimum-image position relative to the first agent, which
+    becomes the `anchor` (WINDOW). bounds[0] is its lowest cell, bounds[1] its highest. Block extrema in parallel,
+    then a serial pass over the blocks (no atomics on one shared address)."""
     for blk in range(partial.shape[1]):
-        lo = cell_coords(load_vec(pos, blk * SCAN_BLOCK, dim), 0, cell_size, 0, OPEN)
+        a = load_vec(pos, 0, dim)
+        lo = _window_cell(load_vec(pos, blk * SCAN_BLOCK, dim), a, box, cell_size, layout)
         hi = lo
         for e in range(blk * SCAN_BLOCK + 1, ti.min(n, (blk + 1) * SCAN_BLOCK)):
-            c = cell_coords(load_vec(pos, e, dim), 0, cell_size, 0, OPEN)
+            c = _window_cell(load_vec(pos, e, dim), a, box, cell_size, layout)
             lo = ti.min(lo, c)
             hi = ti.max(hi, c)
         for d in ti.static(range(dim)):
@@ -343,6 +368,7 @@ def _cell_bounds(n: ti.i32, dim: ti.template(), cell_size: float, pos: ti.types.
             partial[dim + d, blk] = hi[d]
     ti.loop_config(serialize=True)
     for d in range(dim):
+        anchor[d, 0] = pos[d, 0]
         lo = partial[d, 0]
         hi = partial[dim + d, 0]
         for blk in range(1, partial.shape[1]):
@@ -455,11 +481,13 @@ def run_wraps(row, x0, x1, nc, boundary: ti.template()):
     """Whether the stencil of a run crosses a periodic edge. If not, the plain difference of two positions in it
     is already the minimum image: the run's window spans at most nc - 1 cells, so two agents in it are less than
     box - R apart along each axis, and a pair the direct difference puts further than R apart is as far through
-    the boundary."""
+    the boundary. A window grid's cells may lie across the box's edge anywhere: always."""
     wraps = False
     if ti.static(boundary == PERIODIC):
         y = row % nc
         wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
+    elif ti.static(boundary == WINDOW):
+        wraps = True
     return wraps
 
 
@@ -480,9 +508,10 @@ class CellGrid:
     gives the slot of each agent. With ``replicas`` > 1 the n agents are that many independent systems of
     n / replicas agents each (agent id = replica * n / replicas + local id) that never see each other.
 
-    ``bounded`` (open space, one replica): each build stores the cells row-major over their bounding box when they
-    fit (see the module); ``geometry`` is then the layout of the last build, so kernels read it after building. A
-    batch of replicas keeps the hash: a lone run must give the batch's numbers bit for bit, and kernels compiled
+    ``bounded`` (open space or periodic box, one replica): each build stores the cells row-major over the agents'
+    bounding box (open space) or window (periodic box) when they fit, else keeps the hash or the tiling (see the
+    module); ``geometry`` is then the layout of the last build, so kernels read it after building. A batch of
+    replicas keeps the hash: a lone run must give the batch's numbers bit for bit, and kernels compiled
     for two layouts may round differently (Vicsek and adaptive, which run batches, keep the hash for that reason).
     """
 
@@ -494,15 +523,21 @@ class CellGrid:
         self.real = real
         self.replicas = replicas
         self.radius = radius
+        self.box = box
         self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas)
-        self._hashed = self.geometry  # open space: the fallback layout, whose table sizes the arrays
+        self._fallback = self.geometry  # a bounded grid's hash or tiling
         g = self.geometry
-        self.bounded = bounded and g.boundary == OPEN and replicas == 1
+        self.bounded = bounded and g.boundary in (OPEN, PERIODIC) and replicas == 1
+        # buckets the arrays hold: the layout's, and for a window at least WINDOW_MIN_BUCKETS (the capped tiling of
+        # a small swarm in a large torus can have fewer buckets than the window needs cells)
+        self._capacity = g.total_buckets
+        if self.bounded and g.boundary == PERIODIC:
+            self._capacity = max(g.total_buckets, WINDOW_MIN_BUCKETS)
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.coords = ti.ndarray(ti.i32, (dim + 1, n))
         self.bucket = ti.ndarray(ti.i32, n)
-        self.counts = ti.ndarray(ti.i32, g.total_buckets)
-        self.start = ti.ndarray(ti.i32, g.total_buckets + 1)
+        self.counts = ti.ndarray(ti.i32, self._capacity)
+        self.start = ti.ndarray(ti.i32, self._capacity + 1)
         self.order = ti.ndarray(ti.i32, n)
         self.slot_of = ti.ndarray(ti.i32, n)  # see slots(); the GPU build's scratch
         self._slots_fresh = False
@@ -511,12 +546,13 @@ class CellGrid:
         self.coords_sorted = ti.ndarray(ti.i32, (dim + 1, n))
         # open space: 1 for a bucket that holds more than one cell (see span_agents); unused in a box
         self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
-        self.block_start = ti.ndarray(ti.i32, g.total_buckets // SCAN_BLOCK + 2)  # the build's block offsets
+        self.block_start = ti.ndarray(ti.i32, self._capacity // SCAN_BLOCK + 2)  # the build's block offsets
         self.run_end: ti.Ndarray | None = None  # see runs(); allocated on first use (CPU lane-wise kernels only)
         self._runs_fresh = False
         # a bounded grid's bounding box of cells (bounds[0], its lowest cell, is the origin of its cell coordinates;
-        # zeros, unused, for other layouts) and the block extrema that give it
+        # zeros, unused, for other layouts), the block extrema that give it, and a window's anchor
         self.bounds = ti.ndarray(ti.i32, (2, dim))
+        self.anchor = ti.ndarray(ftype, (dim, 1))
         self._bound_blocks = ti.ndarray(ti.i32, (2 * dim, (n + SCAN_BLOCK - 1) // SCAN_BLOCK if self.bounded else 1))
         # how a bucket's agents are put in id order: ranks in parallel (GPU) or an insertion sort (CPU); both give
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
@@ -528,25 +564,30 @@ class CellGrid:
         if self.bounded:
             self.geometry = self._layout(pos)
         g = self.geometry
-        _build(pos, ids, self.n, g.agents_per_replica, g.cell_size, g.cells_per_side, g.n_buckets,
+        _build(pos, ids, self.n, g.agents_per_replica, self.box, g.cell_size, g.cells_per_side, g.n_buckets,
                g.total_buckets, g.boundary, g.dim,
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
                self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
-               self.rank_sort)
+               self.anchor, self.rank_sort)
         self._slots_fresh = False
         self._runs_fresh = False
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
-        """A bounded grid's layout for these positions: the hash's cells over their bounding box's cube, stored
-        row-major, or the hash itself when they are too many (a straggler far out; positions beyond the range of
-        integer cell coordinates, or not finite, give nonsense bounds that always are)."""
-        h = self._hashed
-        _cell_bounds(self.n, h.dim, h.cell_size, pos, self._bound_blocks, self.bounds)
+        """A bounded grid's layout for these positions: side-R cells over the cube on their bounding box (open
+        space) or window (periodic box), stored row-major, or the fallback when they are too many for its buckets (a
+        straggler far out; positions beyond the range of integer cell coordinates, or not finite, give nonsense
+        bounds that always are) or, in a periodic box, when the window leaves less than R (and a margin of one
+        cell for rounding) of the torus outside it."""
+        h = self._fallback
+        layout = WINDOW if h.boundary == PERIODIC else BOUNDED
+        _cell_bounds(self.n, h.dim, self.box, self.radius, layout, pos, self._bound_blocks, self.bounds, self.anchor)
         lo, hi = self.bounds.to_numpy().astype(np.int64)
         per_side = int(np.max(hi - lo)) + 1
-        if per_side < 1 or per_side**h.dim > h.n_buckets:
+        if per_side < 1 or per_side**h.dim > self._capacity:
             return h
-        return GridGeometry(h.dim, BOUNDED, h.cell_size, per_side, per_side**h.dim, per_side**h.dim, self.n)
+        if layout == WINDOW and (per_side + 2) * self.radius > self.box:
+            return h
+        return GridGeometry(h.dim, layout, self.radius, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.

@@ -14,6 +14,9 @@ PERIODIC = 0
 REFLECTING = 1
 OPEN = 2
 BOUNDARIES = {"periodic": PERIODIC, "reflecting": REFLECTING, "open": OPEN}
+#: not a boundary: the layout code of a periodic box's cell grid stored over the window of cells its agents occupy
+#: (tflock.neighbors.CellGrid, ``bounded``); distances in it are the periodic box's, by minimum image
+WINDOW = 4
 
 
 def boundary_code(name: str) -> int:
@@ -23,9 +26,9 @@ def boundary_code(name: str) -> int:
 
 @ti.func
 def displacement(p, q, box, boundary: ti.template()):
-    """q - p, by the minimum image convention when the box is periodic."""
+    """q - p, by the minimum image convention when the box is periodic (a periodic box's ``WINDOW`` grid too)."""
     d = q - p
-    if ti.static(boundary == PERIODIC):  # both points lie in [0, box): one image shift at most
+    if ti.static(boundary == PERIODIC or boundary == WINDOW):  # both points lie in [0, box): one image shift at most
         half = 0.5 * box
         d = ti.select(d > half, d - box, ti.select(d < -half, d + box, d))
     return d

@@ -228,7 +228,7 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
 @ti.kernel
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
           zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
-          nc: ti.i32, n_buckets: ti.i32, lane_wise: ti.template(), start: ti.types.ndarray(),
+          nc: ti.i32, n_buckets: ti.i32, layout: ti.template(), lane_wise: ti.template(), start: ti.types.ndarray(),
           run_end: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
           f_old: ti.types.ndarray(), i_old: ti.types.ndarray(), pos_new: ti.types.ndarray(),
@@ -246,7 +246,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
     if ti.static(lane_wise):
         for b in range(n_buckets):
             row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-            wraps = run_wraps(row, x0, x1, nc, PERIODIC)
+            wraps = run_wraps(row, x0, x1, nc, layout)
             for block in range((a1 - a0 + LANES - 1) // LANES):
                 i0 = a0 + block * LANES
                 s = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
@@ -254,7 +254,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                 px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
                 py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
                 for r in range(3):
-                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, PERIODIC, 2)
+                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, layout, 2)
                     for h in range(2):
                         begin = ti.select(h == 0, b0, b1)
                         end = ti.select(h == 0, e0, e1)
@@ -282,8 +282,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
             px = ti.Vector([pos_sorted[0, s]])
             py = ti.Vector([pos_sorted[1, s]])
             cell = load_cell(coords_sorted, s, 2)
-            for o in range(ti.static(span_count(PERIODIC, 2))):
-                lo, hi, _ = stencil_span(cell, o, nc, n_buckets, PERIODIC, 2)
+            for o in range(ti.static(span_count(layout, 2))):
+                lo, hi, _ = stencil_span(cell, o, nc, n_buckets, layout, 2)
                 a_cos, a_sin, a_count, c_x, c_y, c_count, best, best_id, away_x, away_y = _scan(
                     start[lo], start[hi], ti.Vector([s]), px, py, a_cos, a_sin, a_count, c_x, c_y, c_count, best,
                     best_id, away_x, away_y, c, zones, True, id_sorted, pos_sorted, payload)
@@ -384,8 +384,10 @@ class Formation(Model):
         self.partial = ti.ndarray(ftype, (n_blocks(n), 8))
         self.consts = ti.ndarray(ftype, N_CONSTS)
         self.consts.from_numpy(self._constants().astype(real))
-        self.grid = CellGrid(n, 2, "periodic", params.world, params.radius, real)
         self.lane_wise = engine.arch == "cpu"  # see _step
+        # the swarm fills a small part of the torus: on the CPU the grid covers the window of cells it occupies (the
+        # torus's capped tiling had cells ~5 R wide at N = 1e6); GPU arches keep the tiling (not yet run there)
+        self.grid = CellGrid(n, 2, "periodic", params.world, params.radius, real, bounded=self.lane_wise)
         self._zones = int(params.strategy[2])
         self._out_set, self._in_set = TABLE_1[int(params.strategy[4])]
         self.set_state(ref.initial_state(params, seed), 0)
@@ -475,14 +477,14 @@ class Formation(Model):
 
     def advance(self, steps: int) -> None:
         p = self.params
-        g = self.grid.geometry
         for _ in range(steps):
             t = self.step_index
             a, b = self.cur, 1 - self.cur
             self.grid.build(self.pos[a], self.ids[a])
+            g = self.grid.geometry  # a bounded grid's layout is the build's
             va, va_next = self.va_position(t), self.va_position(t + 1)
             _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
-                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, self.lane_wise,
+                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, g.boundary, self.lane_wise,
                   self.grid.start, self.grid.runs() if self.lane_wise else self.grid.start, self.grid.order,
                   self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.f[a],
                   self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
