@@ -169,32 +169,39 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     th = f_old[THETA, e]
     dva = displacement(p, va, c[WORLD], PERIODIC)
     inside = dva.norm_sqr() <= c[VAIR2]
-    active = ti.select(inside, in_set, out_set)
-    num = 0.0
-    den = 0.0
-    if (active & ALIGN) != 0 and a_count > 0:
-        num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
-        den += c[W_A]
-    if (active & COHESION) != 0 and c_count > 0:
-        num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
-        den += c[W_C]
-    if (active & VA_ALIGN) != 0:
-        num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
-        den += c[W_AV]
-    if (active & VA_COHESION) != 0:
-        num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
-        den += c[W_CV]
+    # the turn: a failed agent's is 0, else Fs alone when separating, else the weighted mean; only the forces the
+    # agent uses are computed (the draws are counters, so skipping one changes no other)
     force = 0.0
-    if den > 0:
-        force = num / den  # eq. (3)
     r = ti.select(inside, INSIDE, OUTSIDE)
-    if best < c[SEP2]:  # eq. (4)
+    failed = False
+    if c[FAIL] > 0:  # a draw u in [0, 1) is never below 0
+        failed = uniform_ti(seed, t, i, Stream.UPDATE) < c[FAIL]
+    if failed:
+        r = FAILED
+    elif best < c[SEP2]:  # eq. (4)
         force = unit_force(ti.atan2(away[1], away[0]), th, c[SEP_CAP])
         r = SEPARATION
-    if uniform_ti(seed, t, i, Stream.UPDATE) < c[FAIL]:
-        force = 0.0
-        r = FAILED
-    eps = c[NOISE] * (2.0 * uniform_ti(seed, t, i, Stream.NOISE) - 1.0)
+    else:
+        active = ti.select(inside, in_set, out_set)
+        num = 0.0
+        den = 0.0
+        if (active & ALIGN) != 0 and a_count > 0:
+            num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
+            den += c[W_A]
+        if (active & COHESION) != 0 and c_count > 0:
+            num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
+            den += c[W_C]
+        if (active & VA_ALIGN) != 0:
+            num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
+            den += c[W_AV]
+        if (active & VA_COHESION) != 0:
+            num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
+            den += c[W_CV]
+        if den > 0:
+            force = num / den  # eq. (3)
+    eps = 0.0
+    if c[NOISE] > 0:
+        eps = c[NOISE] * (2.0 * uniform_ti(seed, t, i, Stream.NOISE) - 1.0)
     new = wrap_two_pi(th + force + eps)  # eqs. (5), (7)
     # speed ramps, eqs. (1)-(2)
     flag = ti.select(inside, 1, 0)
