@@ -66,6 +66,24 @@ def test_bench_overrides_scale_with_n():
     assert load_config(case_config(nested)).params.weights.align == 2.0
 
 
+def test_workload_of_a_model_without_a_neighbour_metric(engine):
+    """formation reports no neighbour count: the bench counts agents within its vision radius on its grid (here a
+    window grid astride the torus's edge), as brute force does."""
+    from tflock import reference as ref
+    from tflock.bench import _mean_neighbours
+    from tflock.config import load_config
+    from tflock.models.formation import Formation
+
+    overrides = {"params.n": 300, "params.world": 60.0, "params.init_length": 20.0, "params.init_width": 20.0,
+                 "engine.precision": engine.precision}
+    params = load_config(model="formation", overrides=overrides).params
+    model = Formation(params, 1, engine)
+    x = (np.random.default_rng(0).random((300, 2)) * 16.0 - 8.0) % 60.0
+    model.set_state({"x": x, "theta": np.zeros(300)}, 0)
+    expected = ref.adjacency(x.astype(engine.real), params.radius, "periodic", 60.0).sum(axis=1).mean()
+    assert expected > 5 and _mean_neighbours(model, model.metrics()) == pytest.approx(expected)
+
+
 @pytest.mark.parametrize("n,box", [(1500, 27.4), (40, 2.5)])  # 27 cells a side; under 3 cells: one cell
 def test_numba_peer_is_the_reference_vicsek_step(n, box):
     """The bench's numba peer computes tflock's model: one noiseless step equals the NumPy reference (f64 1e-10,

@@ -392,7 +392,9 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
     left.legend(fontsize=7)
     right.legend(fontsize=7)
     engine = results[0].engine if results else ""
-    fig.suptitle(f"tflock bench ({engine}; workload: default density, neighbours per agent in the legend)",
+    overrides = sorted({o for r in results for o in r.case.overrides})
+    config = f"default config with {', '.join(overrides)}" if overrides else "default config"
+    fig.suptitle(f"tflock bench ({engine}; workload: {config}, density kept; neighbours per agent in the legend)",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
