@@ -225,7 +225,12 @@ def test_window_layout_matches_brute_force(engine, dim):
     assert geometry.boundary == WINDOW and geometry.cell_size == radius and geometry.cells_per_side <= 10
     expected = ref.adjacency(x.astype(engine.real), radius, "periodic", box).sum(axis=1)
     assert expected.max() >= 5 and np.array_equal(degree, expected)
-    x[5:60, 0] = np.linspace(0.0, box, 55, endpoint=False)  # a chain around the torus: no window fits
-    geometry, degree = bounded_grid_degrees(engine, x, radius, "periodic", box)
-    assert geometry.boundary == PERIODIC
-    assert np.array_equal(degree, ref.adjacency(x.astype(engine.real), radius, "periodic", box).sum(axis=1))
+    for broken in ("chain", "nan anchor", "nan agent"):
+        y = x.copy()
+        if broken == "chain":  # a chain around the torus: no window fits
+            y[5:60, 0] = np.linspace(0.0, box, 55, endpoint=False)
+        else:  # a blown-up agent (the anchor is agent 0) has no neighbours, and no window
+            y[0 if broken == "nan anchor" else 7] = np.nan
+        geometry, degree = bounded_grid_degrees(engine, y, radius, "periodic", box)
+        assert geometry.boundary == PERIODIC, broken
+        assert np.array_equal(degree, ref.adjacency(y.astype(engine.real), radius, "periodic", box).sum(axis=1))

@@ -585,8 +585,9 @@ class CellGrid:
         per_side = int(np.max(hi - lo)) + 1
         if per_side < 1 or per_side**h.dim > self._capacity:
             return h
-        if layout == WINDOW and (per_side + 2) * self.radius > self.box:
-            return h
+        if layout == WINDOW:  # a finite anchor too (were it not, every agent's cell would be the same nonsense)
+            if (per_side + 2) * self.radius > self.box or not np.isfinite(self.anchor.to_numpy()).all():
+                return h
         return GridGeometry(h.dim, layout, self.radius, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:
