@@ -81,7 +81,7 @@ def test_workload_of_a_model_without_a_neighbour_metric(engine):
     x = (np.random.default_rng(0).random((300, 2)) * 16.0 - 8.0) % 60.0
     model.set_state({"x": x, "theta": np.zeros(300)}, 0)
     expected = ref.adjacency(x.astype(engine.real), params.radius, "periodic", 60.0).sum(axis=1).mean()
-    assert expected > 5 and _mean_neighbours(model, model.metrics()) == pytest.approx(expected)
+    assert expected > 5 and _mean_neighbours(model, model.metrics(), 60.0) == pytest.approx(expected)
 
 
 @pytest.mark.parametrize("n,box", [(1500, 27.4), (40, 2.5)])  # 27 cells a side; under 3 cells: one cell

@@ -264,7 +264,7 @@ def run_case(case: BenchCase) -> BenchResult:
             metrics.update(model.metrics())
 
         result.metrics_ms = _timed(measure, ti.sync)
-        result.mean_neighbors = _mean_neighbours(model, metrics)
+        result.mean_neighbors = _mean_neighbours(model, metrics, result.box)
         if case.log:
             result.logging_ms = _timed(lambda: sim.recorder.log_frame(
                 model.step_index, model.frame(sim._selected, 0)), ti.sync)
@@ -276,16 +276,15 @@ def run_case(case: BenchCase) -> BenchResult:
     return result
 
 
-def _mean_neighbours(model: Any, metrics: dict[str, float]) -> float:
+def _mean_neighbours(model: Any, metrics: dict[str, float], box: float) -> float:
     """The workload: the model's own mean neighbour count where its metrics have one, else the mean number of
-    agents within its interaction radius, counted on its grid (formation: the vision radius)."""
+    agents within its interaction radius, counted on its grid of side `box` (formation: the vision radius)."""
     for key in ("mean_neighbors", "valency_mean"):
         if key in metrics:
             return float(metrics[key])
     from tflock.metrics import NeighbourGraph
 
     model.build_neighbours()
-    box = float(next(getattr(model.params, k) for k in LENGTHS if hasattr(model.params, k)))
     return NeighbourGraph(model.grid).compute(model.params.radius, box)["mean_neighbors"]
 
 

@@ -21,9 +21,9 @@ an agent's cell.
 - periodic box, ``bounded`` grids: a swarm that fills a small part of a large torus (the formation model's, around
   its virtual agent) would get the box's capped tiling of few, wide cells. Each build instead takes the agents'
   positions relative to one of them (minimum image), and when the window of side-R cells over them fits in the
-  tiling's buckets and leaves more than R of the torus outside it (so no pair meets through the edge in a way the
-  window cannot see), stores those cells row-major (layout ``WINDOW``, queried as a reflecting box is, distances
-  by minimum image); otherwise it keeps the tiling.
+  tiling's buckets (at least ``WINDOW_MIN_BUCKETS``) and leaves more than R of the torus outside it (so no pair
+  meets through the edge in a way the window cannot see), stores those cells row-major (layout ``WINDOW``, queried
+  as a reflecting box is, distances by minimum image); otherwise it keeps the tiling.
 - replicas: a batch of independent copies of a system (agent id = replica * agents_per_replica + local id)
   shares one grid; the replica is an extra cell coordinate, so no query ever crosses into another replica.
   Each replica's cells are laid out as a lone system's would be, which keeps every neighbour sum in the same
