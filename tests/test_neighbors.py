@@ -96,6 +96,19 @@ def test_edges_are_neighbour_pairs(engine):
     assert len(model.frame(selected, max_edges=10).edges) == 10
 
 
+@pytest.mark.parametrize("max_edges", [1, 300, 2999, 7000, 10**6])
+def test_edges_capped_are_the_first_of_all_edges(engine, max_edges):
+    """A cap keeps the edges of the first drawn agents in id order, exactly as drawing all of them and cutting the
+    list (the drawing counts only as many agents as the cap needs, in chunks of growing size)."""
+    rng = np.random.default_rng(2)
+    x = rng.random((4000, 2)) * 40.0
+    model = model_at(engine, x, "periodic", 40.0, 1.0)
+    selected = np.sort(rng.choice(4000, 3000, replace=False))
+    everything = model.frame(selected, max_edges=10**9).edges
+    assert len(everything) > 7000  # the caps below end inside the second and a later chunk
+    np.testing.assert_array_equal(model.frame(selected, max_edges=max_edges).edges, everything[:max_edges])
+
+
 @pytest.mark.parametrize("boundary,replicas", [("periodic", 1), ("reflecting", 3), ("open", 1), ("open", 2)])
 def test_rank_sort_builds_the_same_grid(engine, boundary, replicas):
     """The GPU's in-bucket ordering (each agent's rank among its bucket's ids) and the CPU's insertion sort give the
@@ -234,3 +247,23 @@ def test_window_layout_matches_brute_force(engine, dim):
         geometry, degree = bounded_grid_degrees(engine, y, radius, "periodic", box)
         assert geometry.boundary == PERIODIC, broken
         assert np.array_equal(degree, ref.adjacency(y.astype(engine.real), radius, "periodic", box).sum(axis=1))
+
+
+@pytest.mark.parametrize("model", ["vicsek", "adaptive"])
+def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
+    """A frame draws the selected agents' own positions and headings (its rows are gathered in the grid's order,
+    which differs from the order the state is kept in once agents have changed cells)."""
+    sim = make_sim(model=model, params={"n": 3000, "box": 30.0}, steps=20)
+    sim.step(6)
+    selected = np.arange(1, 3000, 3)
+    frame = sim.model.frame(selected, max_edges=500)
+    state = sim.model.state()
+    np.testing.assert_allclose(frame.positions, state["x"][selected], rtol=1e-6, atol=1e-5)
+    if model == "vicsek":
+        theta = state["theta"][selected]
+        heading = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    else:
+        heading = state["d"][selected]
+    unit = frame.directions / np.linalg.norm(frame.directions, axis=1, keepdims=True)
+    np.testing.assert_allclose(unit, heading / np.linalg.norm(heading, axis=1, keepdims=True), atol=1e-5)
+    assert len(frame.edges) == 500

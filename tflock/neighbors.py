@@ -558,6 +558,7 @@ class CellGrid:
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
         self.rank_sort = (engine is not None and engine.arch != "cpu") if rank_sort is None else rank_sort
+        self.builds = 0  # how many builds so far: data derived from one build names it
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
@@ -571,6 +572,7 @@ class CellGrid:
                self.anchor, self.rank_sort)
         self._slots_fresh = False
         self._runs_fresh = False
+        self.builds += 1
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
         """A bounded grid's layout for these positions: side-R cells over the cube on their bounding box (open
@@ -641,19 +643,31 @@ def drawn_rank(i, bits: ti.template(), word_rank: ti.template()):
 
 
 @ti.kernel
-def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
-           radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+def _drawn_slots(n: ti.i32, id_sorted: ti.types.ndarray(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
+                 slot: ti.types.ndarray()):
+    """The slot in the grid of each drawn agent, by one pass over the grid's agents (sequential reads; a
+    ``slot_of`` of all agents scatters a write per agent)."""
+    for s in range(n):
+        r = drawn_rank(id_sorted[s], bits, word_rank)
+        if r >= 0:
+            slot[r] = s
+
+
+@ti.kernel
+def _pairs(m0: ti.i32, m1: ti.i32, slot: ti.types.ndarray(), bits: ti.types.ndarray(),
+           word_rank: ti.types.ndarray(), radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
            boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
-           id_sorted: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+           id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
            coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
            limit: ti.i32, fill: ti.template(), edges: ti.types.ndarray()):
-    """Count (fill = False) or write (fill = True, from `offsets`, at most `limit`) the drawn neighbour pairs."""
-    for m in range(n_sel):
+    """Count (fill = False) or write (fill = True, from `offsets`, at most `limit`) the drawn neighbour pairs of
+    the selected agents m0 <= m < m1."""
+    for m in range(m0, m1):
         e = 0
         if ti.static(fill):
             e = offsets[m]
-        i = selected_ids[m]
-        s = slot_of[i]
+        s = slot[m]
+        i = id_sorted[s]
         p = load_vec(pos_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)
         for o in range(ti.static(span_count(boundary, dim))):
@@ -674,28 +688,30 @@ def _pairs(n_sel: ti.i32, selected_ids: ti.types.ndarray(), bits: ti.types.ndarr
             counts[m] = e
 
 
+EDGE_CHUNK = 256  # drawn agents whose edges are counted in the first pass (then 512, 1024, ...)
+
+
 class SubsetDrawing:
     """Fixed subset of agents drawn every frame: their membership and frame rows (``bits``, ``word_rank``, see
     :func:`drawn_rank`) and their neighbour edges, built on the device.
 
-    Index arrays are uploaded once; each edges call launches two small kernels over the subset only.
+    Index arrays are uploaded once. The drawn agents' slots in the grid (``slot``) come from one pass over the
+    grid's agents per build (or a model's own rows pass, which says so with :meth:`located`); edges are then
+    counted and written for only as many drawn agents as the cap needs.
     """
 
     def __init__(self, grid: CellGrid, selected_ids: np.ndarray) -> None:
         self.grid = grid
         self.selected_ids = np.asarray(selected_ids, dtype=np.int32)
         m = max(1, len(self.selected_ids))
-        self.ids = ti.ndarray(ti.i32, m)
-        self.counts = ti.ndarray(ti.i32, m)
-        self.offsets = ti.ndarray(ti.i32, m)
+        self.slot = ti.ndarray(ti.i32, m)  # each drawn agent's slot in the grid's build number `_located`
+        self._located = -1
         # membership as one bit per agent (it stays in cache during a pass over all agents) and, per 32-agent word,
         # the rank of its first selected agent: see drawn_rank
         words = (grid.n + 31) // 32
         self.bits = ti.ndarray(ti.u32, words)
         self.word_rank = ti.ndarray(ti.i32, words)
-        self._rows: ti.Ndarray | None = None
         if len(self.selected_ids):
-            self.ids.from_numpy(np.pad(self.selected_ids, (0, m - len(self.selected_ids))))
             word = self.selected_ids >> 5
             bits = np.zeros(words, dtype=np.uint32)
             np.bitwise_or.at(bits, word, np.left_shift(np.uint32(1), (self.selected_ids & 31).astype(np.uint32)))
@@ -703,12 +719,16 @@ class SubsetDrawing:
             self.word_rank.from_numpy(np.concatenate(([0], np.cumsum(np.bincount(word, minlength=words))[:-1]))
                                       .astype(np.int32))
 
-    def rows(self, dtype, columns: int) -> ti.Ndarray:
-        """A (len(selected), columns) buffer for a model's drawn rows, allocated once (it took ~1 ms a frame)."""
-        shape = (max(1, len(self.selected_ids)), columns)
-        if self._rows is None or self._rows.shape != shape or self._rows.dtype != dtype:
-            self._rows = ti.ndarray(dtype, shape)
-        return self._rows
+    def located(self) -> None:
+        """Say that ``slot`` holds each drawn agent's slot in the grid's current build (a model's frame rows pass
+        over the grid's agents can write it for free, see Vicsek's ``_drawn_rows``)."""
+        self._located = self.grid.builds
+
+    def locate(self) -> None:
+        """Fill ``slot`` for the grid's current build, unless it holds it already."""
+        if self._located != self.grid.builds and len(self.selected_ids):
+            _drawn_slots(self.grid.n, self.grid.id_sorted, self.bits, self.word_rank, self.slot)
+            self.located()
 
     def edges(self, box: float, radius: float, max_edges: int) -> np.ndarray:
         """Segments (E, 2, dim) from each selected agent to its neighbours, E <= max_edges.
@@ -720,15 +740,26 @@ class SubsetDrawing:
         n_sel = len(self.selected_ids)
         if n_sel == 0 or max_edges == 0:
             return np.zeros((0, 2, g.dim), dtype=self.grid.real)
-        args = (n_sel, self.ids, self.bits, self.word_rank, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
-                g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.slots(), self.grid.pos_sorted,
+        self.locate()
+        args = (self.slot, self.bits, self.word_rank, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
+                g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted,
                 self.grid.coords_sorted)
-        _pairs(*args, self.counts, self.offsets, 0, False, self.offsets)
-        per_agent = self.counts.to_numpy()[:n_sel]
-        total = int(min(per_agent.sum(), max_edges))
-        if total == 0:
-            return np.zeros((0, 2, g.dim), dtype=self.grid.real)
-        self.offsets.from_numpy(np.concatenate(([0], np.cumsum(per_agent)[:-1])).astype(np.int32))
-        edges = ti.ndarray(self.grid.pos_sorted.dtype, (total, 2, g.dim))
-        _pairs(*args, self.counts, self.offsets, total, True, edges)
-        return edges.to_numpy()
+        # count the pairs of the first agents only, in chunks that double, until they give max_edges: each agent
+        # costs a few cache misses (its cells lie anywhere in memory), ~1 us, so counting all 50k drawn agents of a
+        # large run took ~55 ms a pass where ~200 agents fill the default 4000 edges
+        # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
+        # and from a GPU), where a Taichi ndarray's to_numpy costs a copy kernel each
+        counts = np.zeros(n_sel, dtype=np.int32)
+        counted, total, chunk = 0, 0, EDGE_CHUNK
+        while counted < n_sel and total < max_edges:
+            upto = min(n_sel, counted + chunk)
+            _pairs(counted, upto, *args, counts, counts, 0, False, counts)
+            total = int(counts[:upto].sum())
+            counted, chunk = upto, 2 * chunk
+        total = min(total, max_edges)
+        edges = np.zeros((total, 2, g.dim), dtype=self.grid.real)
+        if total:
+            offsets = np.zeros(counted, dtype=np.int32)
+            offsets[1:] = np.cumsum(counts[: counted - 1])
+            _pairs(0, counted, *args, counts, offsets, total, True, edges)
+        return edges

@@ -166,12 +166,12 @@ def _order_sums(n: ti.i32, length: ti.i32, alpha: float, tol: float, mode: ti.te
 
 @ti.kernel
 def _frame_rows(m: ti.i32, alpha: float, tol: float, mode: ti.template(), dim: ti.template(),
-                selected: ti.types.ndarray(), slot_of: ti.types.ndarray(), order: ti.types.ndarray(),
+                slot: ti.types.ndarray(), order: ti.types.ndarray(),
                 pos_sorted: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(),
                 out: ti.types.ndarray()):
-    """Rows (position, velocity / v0 = c_alpha(phi) d) of the selected agents."""
+    """Rows (position, velocity / v0 = c_alpha(phi) d) of the drawn agents, at their grid slots `slot`."""
     for r in range(m):
-        s = slot_of[selected[r]]
+        s = slot[r]
         e = order[s]
         c = speed_coefficient(phi[e], alpha, tol, mode)
         for a in ti.static(range(dim)):
@@ -346,11 +346,11 @@ class Adaptive(GridModel):
         p = self.params
         drawing = self.drawing(selected)
         m = len(selected)
-        out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * p.dim))
+        rows = np.zeros((m, 2 * p.dim), dtype=self.grid.real)  # written in place on the CPU: no copy kernel
         if m:
-            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.ids, self.grid.slots(),
-                        self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, out)
-        rows = out.to_numpy()[:m]
+            drawing.locate()
+            _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.slot,
+                        self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, rows)
         spacing = p.box / p.n ** (1 / p.dim)
         return Frame(
             positions=rows[:, : p.dim].astype(np.float32),
