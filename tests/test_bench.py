@@ -28,6 +28,8 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
         assert r["ms_min"] <= r["ms_median"] <= r["ms_max"]
         assert r["agent_steps_per_s"] == pytest.approx(r["case"]["n"] / r["ms_median"] * 1e3)
         assert r["build_ms"] > 0 and r["interactions_ms"] >= 0 and r["metrics_ms"] > 0 and r["logging_ms"] > 0
+        assert r["logged_ms_median"] > 0
+        assert r["logging_overhead"] == pytest.approx(r["logged_ms_median"] / r["ms_median"] - 1.0)
         assert r["mean_neighbors"] > 0 and r["first_step_s"] > 0
         assert 50 < r["device_bytes_per_agent"] < 400 and r["peak_rss_mb"] > 0
         assert set(r["peers"]) == {"numpy_reference", "ckdtree_sparse"} | ({"numba_cells"} if HAS_NUMBA else set())

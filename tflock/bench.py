@@ -41,6 +41,7 @@ PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less
 NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 #: expected time of the cKDTree + sparse-matrix peer per agent-neighbour pair (0.2-0.35 us measured here at 1e6)
 CKDTREE_S_PER_PAIR = 4e-7
+METRICS_NEVER = 10**9  # log.metrics_every of a case: steps logged for timing take no metrics pass (timed apart)
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,9 @@ class BenchResult:
     build_ms: float | None = None
     interactions_ms: float | None = None
     metrics_ms: float = 0.0
-    logging_ms: float | None = None
+    logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
+    logged_ms_median: float | None = None  # a step with a frame logged every step, the same steps as ms_median
+    logging_overhead: float | None = None  # logged_ms_median / ms_median - 1
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
     # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
@@ -106,10 +109,10 @@ def case_config(case: BenchCase) -> dict[str, Any]:
     params = load_config(model=case.model, overrides=list(case.overrides)).params
     scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
     lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
-    return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 1,
+    return {"model": case.model, "seed": 1, "steps": case.develop_steps + 2 * case.repeats + 2,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
             "params": {**_override_tree(case.overrides)["params"], "n": case.n, **lengths},
-            "log": {"max_agents": case.log_agents, "max_edges": 0, "every": 1, "metrics_every": 1}}
+            "log": {"max_agents": case.log_agents, "every": 1, "metrics_every": METRICS_NEVER}}
 
 
 def _override_tree(overrides: Iterable[str]) -> dict[str, Any]:
@@ -231,6 +234,24 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
     return peers
 
 
+def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], list[float]]:
+    """ms of each step taken twice from the same state, minutes apart at most on a drifting machine: plain
+    (grid build included) and as a logging run takes it (a frame every step: the step on the grid its last frame
+    built, the non-finite guard, this step's grid and frame, Rerun)."""
+    import taichi as ti
+
+    model, plain, logged = sim.model, [], []
+    for _ in range(repeats):
+        here = (model.checkpoint(), model.step_index)
+        model.invalidate()
+        plain.append(_timed(lambda: model.advance(1), ti.sync))
+        model.restore(*here)
+        model.build_neighbours()
+        ti.sync()
+        logged.append(_timed(lambda: sim.step(1), ti.sync))
+    return plain, logged
+
+
 def run_case(case: BenchCase) -> BenchResult:
     """Measure one case in this process (the engine is initialised with the case's settings)."""
     import taichi as ti
@@ -250,10 +271,16 @@ def run_case(case: BenchCase) -> BenchResult:
         if case.state == "developed":
             model.advance(case.develop_steps)
             ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
-        steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
+        if case.log:
+            steps, logged = _plain_and_logged_steps(sim, case.repeats)
+            result.logged_ms_median = statistics.median(logged)
+        else:
+            steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)
+        if result.logged_ms_median is not None:
+            result.logging_overhead = result.logged_ms_median / result.ms_median - 1.0
         if hasattr(model, "build_neighbours"):
             builds = [_timed(model.build_neighbours, ti.sync) for _ in range(max(3, case.repeats // 2))]
             result.build_ms = statistics.median(builds)
@@ -266,8 +293,7 @@ def run_case(case: BenchCase) -> BenchResult:
         result.metrics_ms = _timed(measure, ti.sync)
         result.mean_neighbors = _mean_neighbours(model, metrics, result.box)
         if case.log:
-            result.logging_ms = _timed(lambda: sim.recorder.log_frame(
-                model.step_index, model.frame(sim._selected, 0)), ti.sync)
+            result.logging_ms = _timed(lambda: (sim._guard(), sim._observe()), ti.sync)
         result.device_bytes_per_agent = device_bytes(model) / case.n
         if case.peers:
             result.peers = _time_peers(model, result.ms_median, result.mean_neighbors, sim.engine.threads)

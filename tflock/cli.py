@@ -323,7 +323,8 @@ def bench(
     threads: Annotated[str, typer.Option(help="Comma-separated CPU thread counts (0 = all cores).")] = "0",
     arch: Annotated[str, typer.Option(help="cpu | cuda | vulkan | auto.")] = "cpu",
     precision: Annotated[str, typer.Option(help="f32 | f64.")] = "f32",
-    log: Annotated[bool, typer.Option("--log/--no-log", help="Also time logging a 50k-agent frame.")] = False,
+    log: Annotated[bool, typer.Option(
+        "--log/--no-log", help="Also time logging: one frame, and the same steps again with a frame each.")] = False,
     peers: Annotated[bool, typer.Option("--peers/--no-peers", help=(
         "Time the peers: the NumPy reference, and the cKDTree and Numba steps where scipy / numba are installed "
         "(pip install tflock[bench])."))] = True,
@@ -370,7 +371,7 @@ def bench(
             progress.advance(task)
     table = Table(title="tflock bench (ms per step: median (min-max); workload = mean neighbours per agent)")
     for column in ("model", "N", "state", "neighbours", "ms/step", "agent-steps/s", "build", "interact",
-                   "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
+                   "metrics", "log", "logged step", "first step", "B/agent", "peers (x tflock time)"):
         table.add_column(column, justify="right")
     for r in results:
         c = r.case
@@ -379,6 +380,7 @@ def bench(
         table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})", f"{r.agent_steps_per_s:.3g}",
                       opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
+                      "-" if r.logged_ms_median is None else f"{r.logged_ms_median:.1f} ({r.logging_overhead:+.0%})",
                       f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)
     (out if out.is_terminal else Console(width=200)).print(table)
     if not results:
