@@ -275,3 +275,15 @@ def test_bad_input_is_one_line_and_exit_2(case: str, tmp_path: Path, monkeypatch
 def test_load_sweep_errors_are_config_errors() -> None:
     with pytest.raises(ConfigError, match=r"^point 0 \(params.n = 0\): params.n: must be > 0, got 0$"):
         load_sweep({"model": "vicsek", "grid": {"params.n": [0]}})
+
+
+def test_local_workers_drop_only_the_shutdown_heartbeat_error(monkeypatch) -> None:
+    """A local worker whose last heartbeat meets the closed scheduler logs an error at shutdown: it is dropped (the
+    CLI's stderr stays empty, see above); other errors of the worker still show."""
+    monkeypatch.setattr(sweep_execute.signal, "signal", lambda *args: None)  # this process keeps its Ctrl-C
+    log = logging.getLogger("distributed.worker")
+    monkeypatch.setattr(log, "filters", [])
+    sweep_execute.dask_setup(None)
+    race = log.makeRecord(log.name, logging.ERROR, __file__, 0, sweep_execute.HEARTBEAT_RACE + ".", None, None)
+    other = log.makeRecord(log.name, logging.ERROR, __file__, 0, "Compute Failed", None, None)
+    assert not log.filter(race) and log.filter(other)
