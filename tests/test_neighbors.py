@@ -249,11 +249,12 @@ def test_window_layout_matches_brute_force(engine, dim):
         assert np.array_equal(degree, ref.adjacency(y.astype(engine.real), radius, "periodic", box).sum(axis=1))
 
 
-@pytest.mark.parametrize("model", ["vicsek", "adaptive"])
+@pytest.mark.parametrize("model", ["vicsek", "adaptive", "potential"])
 def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
     """A frame draws the selected agents' own positions and headings (its rows are gathered in the grid's order,
     which differs from the order the state is kept in once agents have changed cells)."""
-    sim = make_sim(model=model, params={"n": 3000, "box": 30.0}, steps=20)
+    params = {"n": 3000, "box": 30.0} if model != "potential" else {"n": 3000, "box": 60.0, "dt": 0.05}
+    sim = make_sim(model=model, params=params, steps=20)
     sim.step(6)
     selected = np.arange(1, 3000, 3)
     frame = sim.model.frame(selected, max_edges=500)
@@ -263,7 +264,7 @@ def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
         theta = state["theta"][selected]
         heading = np.stack([np.cos(theta), np.sin(theta)], axis=1)
     else:
-        heading = state["d"][selected]
+        heading = state["d" if model == "adaptive" else "v"][selected]
     unit = frame.directions / np.linalg.norm(frame.directions, axis=1, keepdims=True)
     np.testing.assert_allclose(unit, heading / np.linalg.norm(heading, axis=1, keepdims=True), atol=1e-5)
     assert len(frame.edges) == 500

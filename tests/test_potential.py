@@ -13,7 +13,7 @@ import pytest
 from conftest import PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
-from tflock.models.potential import Potential
+from tflock.models.potential import _SPEED_RAMP, Potential, speed_colors
 from tflock.models.potential_graphs import component_labels, initial_state, to_csr
 from tflock.reference import potential as ref
 
@@ -280,3 +280,16 @@ def test_lane_wise_step_equals_per_agent_step(engine, dim):
     for key in ("x", "v"):
         a, b = (r[key].astype(np.float64) for r in results)
         assert np.all(np.abs(a - b) <= 8 * ulp * (scale + np.abs(b))), key
+
+
+def test_speed_colours_follow_the_ramp():
+    """The looked-up colours stay within one level of the ramp interpolated per agent; its ends are exact."""
+    speed = np.concatenate([np.linspace(0.0, 2.0, 20001), [0.0, 1.0, 5.0]])
+    t = np.clip(speed / 2.0, 0.0, 1.0) * (len(_SPEED_RAMP) - 1)
+    k = np.minimum(t.astype(np.int64), len(_SPEED_RAMP) - 2)
+    f = (t - k)[:, None]
+    exact = np.rint(_SPEED_RAMP[k] * (1 - f) + _SPEED_RAMP[k + 1] * f)
+    colours = speed_colors(speed, 2.0)
+    assert colours.dtype == np.uint8 and colours.shape == (len(speed), 3)
+    assert np.abs(colours.astype(int) - exact).max() <= 1
+    assert (colours[-3] == _SPEED_RAMP[0]).all() and (colours[-1] == _SPEED_RAMP[-1]).all()

@@ -688,7 +688,7 @@ def _pairs(m0: ti.i32, m1: ti.i32, slot: ti.types.ndarray(), bits: ti.types.ndar
             counts[m] = e
 
 
-EDGE_CHUNK = 256  # drawn agents whose edges are counted in the first pass (then 512, 1024, ...)
+EDGE_CHUNK = 256  # drawn agents whose edges are counted in the first pass
 
 
 class SubsetDrawing:
@@ -744,9 +744,10 @@ class SubsetDrawing:
         args = (self.slot, self.bits, self.word_rank, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
                 g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted,
                 self.grid.coords_sorted)
-        # count the pairs of the first agents only, in chunks that double, until they give max_edges: each agent
-        # costs a few cache misses (its cells lie anywhere in memory), ~1 us, so counting all 50k drawn agents of a
-        # large run took ~55 ms a pass where ~200 agents fill the default 4000 edges
+        # count the pairs of the first agents only, a chunk at a time (sized by the edges an agent gave so far, with
+        # a margin), until they give max_edges: each agent costs a few cache misses (its cells lie anywhere in
+        # memory), ~1 us, so counting all 50k drawn agents of a large run took ~55 ms a pass where ~200 agents fill
+        # the default 4000 edges
         # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
         # and from a GPU), where a Taichi ndarray's to_numpy costs a copy kernel each
         counts = np.zeros(n_sel, dtype=np.int32)
@@ -755,7 +756,8 @@ class SubsetDrawing:
             upto = min(n_sel, counted + chunk)
             _pairs(counted, upto, *args, counts, counts, 0, False, counts)
             total = int(counts[:upto].sum())
-            counted, chunk = upto, 2 * chunk
+            counted = upto
+            chunk = int(1.25 * (max_edges - total) * counted / total) + EDGE_CHUNK if total else 2 * chunk
         total = min(total, max_edges)
         edges = np.zeros((total, 2, g.dim), dtype=self.grid.real)
         if total:

@@ -65,12 +65,23 @@ def potential_np(r2: np.ndarray, d2: float) -> np.ndarray:
     return d2 / r2 + np.log(r2)
 
 
-def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
-    """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow)."""
-    t = np.clip(np.asarray(speed, dtype=np.float64) / scale, 0.0, 1.0) * (len(_SPEED_RAMP) - 1)
+def _speed_palette(levels: int) -> np.ndarray:
+    """The ramp at `levels` evenly spaced points of [0, 1], (levels, 3) uint8."""
+    t = np.linspace(0.0, 1.0, levels) * (len(_SPEED_RAMP) - 1)
     k = np.minimum(t.astype(np.int64), len(_SPEED_RAMP) - 2)
     f = (t - k)[:, None]
     return np.rint(_SPEED_RAMP[k] * (1 - f) + _SPEED_RAMP[k + 1] * f).astype(np.uint8)
+
+
+_SPEED_LEVELS = 1024  # finer than a colour channel's 256 levels along the ramp's longest leg
+_SPEED_PALETTE = _speed_palette(_SPEED_LEVELS)
+
+
+def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
+    """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow), looked up in a
+    table of 1024 levels, within one level of each channel of the ramp itself (50k agents: 6 -> 1.6 ms)."""
+    t = np.clip(np.asarray(speed, dtype=np.float32) * np.float32(1.0 / scale), 0.0, 1.0)
+    return _SPEED_PALETTE[np.rint(t * np.float32(_SPEED_LEVELS - 1)).astype(np.int64)]
 
 
 @ti.func
@@ -252,6 +263,18 @@ def _gather(m: ti.i32, n: ti.i32, dim: ti.template(), agents: ti.types.ndarray()
         e = where[agents[r]]
         for a in ti.static(range(dim)):
             out[r, a] = pos[a, e]
+            out[r, dim + a] = vel[a, e]
+
+
+@ti.kernel
+def _drawn_gather(m: ti.i32, dim: ti.template(), slot: ti.types.ndarray(), order: ti.types.ndarray(),
+                  pos_sorted: ti.types.ndarray(), vel: ti.types.ndarray(), out: ti.types.ndarray()):
+    """Rows (x, v) of the drawn agents from their grid slots (:meth:`SubsetDrawing.locate`): no pass over all."""
+    for r in range(m):
+        s = slot[r]
+        e = order[s]
+        for a in ti.static(range(dim)):
+            out[r, a] = pos_sorted[a, s]
             out[r, dim + a] = vel[a, e]
 
 
@@ -462,22 +485,28 @@ class Potential(GridModel):
     def _rows(self, agents: np.ndarray) -> np.ndarray:
         """(m, 2 dim) rows x, v of the given agents."""
         m = len(agents)
-        out = ti.ndarray(self.pos.dtype, (max(1, m), 2 * self.dim))
+        out = np.zeros((m, 2 * self.dim), dtype=self.engine.real)  # NumPy arrays: no copy kernels on the CPU
         if m:
-            ids = ti.ndarray(ti.i32, m)
-            ids.from_numpy(np.asarray(agents, dtype=np.int32))
-            _gather(m, self.params.n, self.dim, ids, self.ids, self._where, self.pos, self.vel, out)
-        return out.to_numpy()[:m].astype(np.float64)
+            _gather(m, self.params.n, self.dim, np.ascontiguousarray(agents, dtype=np.int32), self.ids, self._where,
+                    self.pos, self.vel, out)
+        return out.astype(np.float64)
 
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
         """Agents coloured by speed, velocity arrows, and the interaction graph's edges (the fixed graph, or the
         current switching one)."""
         p, dim = self.params, self.dim
-        rows = self._rows(selected)
-        pos, vel = rows[:, :dim], rows[:, dim:]
-        if self.switching:
-            edges = self.drawing(selected).edges(p.box, p.radius, max_edges)
+        if self.switching:  # the drawing's grid, built for the edges, gives the rows too
+            drawing = self.drawing(selected)
+            rows = np.zeros((len(selected), 2 * dim), dtype=self.engine.real)
+            if len(selected):
+                drawing.locate()
+                _drawn_gather(len(selected), dim, drawing.slot, self.grid.order, self.grid.pos_sorted, self.vel,
+                              rows)
+            pos, vel = rows[:, :dim].astype(np.float64), rows[:, dim:].astype(np.float64)
+            edges = drawing.edges(p.box, p.radius, max_edges)
         else:
+            rows = self._rows(selected)
+            pos, vel = rows[:, :dim], rows[:, dim:]
             edges = self._fixed_edges(selected, pos, max_edges)
         with np.errstate(over="ignore"):  # an f64 run on its way to a fault exceeds float32 first: drawn as inf
             return Frame(
