@@ -235,7 +235,7 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
 
 
 def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], list[float]]:
-    """ms of each step taken twice from the same state, minutes apart at most on a drifting machine: plain
+    """ms of each step taken twice from the same state, one right after the other on a drifting machine: plain
     (grid build included) and as a logging run takes it (a frame every step: the step on the grid its last frame
     built, the non-finite guard, this step's grid and frame, Rerun)."""
     import taichi as ti
