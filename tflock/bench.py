@@ -109,7 +109,8 @@ def case_config(case: BenchCase) -> dict[str, Any]:
     params = load_config(model=case.model, overrides=list(case.overrides)).params
     scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
     lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
-    return {"model": case.model, "seed": 1, "steps": case.develop_steps + 2 * case.repeats + 2,
+    # steps: one more than the timed steps reach, so that none is the run's last (which takes a metrics pass)
+    return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 2,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
             "params": {**_override_tree(case.overrides)["params"], "n": case.n, **lengths},
             "log": {"max_agents": case.log_agents, "every": 1, "metrics_every": METRICS_NEVER}}

@@ -540,7 +540,7 @@ class CellGrid:
         self.start = ti.ndarray(ti.i32, self._capacity + 1)
         self.order = ti.ndarray(ti.i32, n)
         self.slot_of = ti.ndarray(ti.i32, n)  # see slots(); the GPU build's scratch
-        self._slots_fresh = False
+        self._slots_build = -1  # the build whose slots slot_of holds
         self.id_sorted = ti.ndarray(ti.i32, n)
         self.pos_sorted = ti.ndarray(ftype, (dim, n))
         self.coords_sorted = ti.ndarray(ti.i32, (dim + 1, n))
@@ -548,7 +548,7 @@ class CellGrid:
         self.mixed = ti.ndarray(ti.i32, g.total_buckets if g.boundary == OPEN else 1)
         self.block_start = ti.ndarray(ti.i32, self._capacity // SCAN_BLOCK + 2)  # the build's block offsets
         self.run_end: ti.Ndarray | None = None  # see runs(); allocated on first use (CPU lane-wise kernels only)
-        self._runs_fresh = False
+        self._runs_build = -1  # the build whose runs run_end holds
         # a bounded grid's bounding box of cells (bounds[0], its lowest cell, is the origin of its cell coordinates;
         # zeros, unused, for other layouts), the block extrema that give it, and a window's anchor
         self.bounds = ti.ndarray(ti.i32, (2, dim))
@@ -558,7 +558,7 @@ class CellGrid:
         # the same grid, `rank_sort` picks one (default: by the engine's arch)
         engine = current_engine()
         self.rank_sort = (engine is not None and engine.arch != "cpu") if rank_sort is None else rank_sort
-        self.builds = 0  # how many builds so far: data derived from one build names it
+        self.builds = 0  # how many builds so far: data derived from a build (slots, runs, drawn slots) names it
 
     def build(self, pos: ti.Ndarray, ids: ti.Ndarray) -> None:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
@@ -570,8 +570,6 @@ class CellGrid:
                self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
                self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
                self.anchor, self.rank_sort)
-        self._slots_fresh = False
-        self._runs_fresh = False
         self.builds += 1
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
@@ -598,9 +596,9 @@ class CellGrid:
         Only metrics and drawn frames look agents up by id; filling it in every build would scatter one write
         per agent over the whole array (about 10 of a build's 35 ms at N = 1e6 on the CPU).
         """
-        if not self._slots_fresh:
+        if self._slots_build != self.builds:
             _fill_slots(self.n, self.id_sorted, self.slot_of)
-            self._slots_fresh = True
+            self._slots_build = self.builds
         return self.slot_of
 
     def runs(self) -> ti.Ndarray:
@@ -616,11 +614,11 @@ class CellGrid:
         g = self.geometry
         if g.boundary == OPEN:
             raise ValueError("runs need a box or bounded grid (this build hashed its cells)")
-        if not self._runs_fresh:
+        if self._runs_build != self.builds:
             if self.run_end is None:
                 self.run_end = ti.ndarray(ti.i32, self.counts.shape[0])
             _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_end)
-            self._runs_fresh = True
+            self._runs_build = self.builds
         return self.run_end
 
 
