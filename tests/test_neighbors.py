@@ -8,7 +8,8 @@ from conftest import ARCH
 from tflock import reference as ref
 from tflock.config import load_config
 from tflock.models.vicsek import Vicsek
-from tflock.neighbors import CellGrid
+from tflock.neighbors import CellGrid, run_at, window_run_wraps
+from tflock.space import WINDOW
 
 
 def model_at(engine, x, boundary, box, radius):
@@ -247,6 +248,54 @@ def test_window_layout_matches_brute_force(engine, dim):
         geometry, degree = bounded_grid_degrees(engine, y, radius, "periodic", box)
         assert geometry.boundary == PERIODIC, broken
         assert np.array_equal(degree, ref.adjacency(y.astype(engine.real), radius, "periodic", box).sum(axis=1))
+
+
+@ti.kernel
+def _window_wraps(nc: ti.i32, cell_size: float, box: float, start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                  bounds: ti.types.ndarray(), anchor: ti.types.ndarray(), out: ti.types.ndarray()):
+    """out[b] = window_run_wraps of the run starting at bucket b (1 or 0), -1 where none starts."""
+    for b in range(nc * nc):
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        out[b] = -1
+        if a1 > a0:
+            out[b] = ti.select(window_run_wraps(row, x0, x1, nc, cell_size, box, bounds, anchor), 1, 0)
+
+
+@pytest.mark.parametrize("where", ["middle", "below the upper edges", "astride the corner"])
+def test_window_runs_skip_the_minimum_image_only_where_it_is_the_plain_difference(engine, where):
+    """A run of a window grid that takes plain differences (window_run_wraps false) has every pair of its agents
+    and its stencil's candidates less than box / 2 apart along each axis, where the minimum image is the plain
+    difference; a swarm away from the torus's edges takes that path in most runs, one at its edges in few."""
+    box, radius, n = 200.0, 1.5, 600
+    rng = np.random.default_rng(len(where))
+    offset = {"middle": 90.0, "below the upper edges": box - 12.0, "astride the corner": -6.0}
+    x = (rng.random((n, 2)) * 12.0 + offset[where]) % box
+    if where == "below the upper edges":
+        x[:20] = box - 1e-3 * rng.random((20, 2))
+    grid = CellGrid(n, 2, "periodic", box, radius, engine.real, bounded=True)
+    pos = ti.ndarray(ti.f32 if engine.real == np.float32 else ti.f64, (2, n))
+    pos.from_numpy(np.ascontiguousarray(x.T, dtype=engine.real))
+    ids = ti.ndarray(ti.i32, n)
+    ids.from_numpy(np.arange(n, dtype=np.int32))
+    grid.build(pos, ids)
+    g = grid.geometry
+    assert g.boundary == WINDOW
+    nc = g.cells_per_side
+    out = np.zeros(nc * nc, dtype=np.int32)
+    _window_wraps(nc, g.cell_size, box, grid.start, grid.runs(), grid.bounds, grid.anchor, out)
+    start, run_end, p = grid.start.to_numpy(), grid.runs().to_numpy(), grid.pos_sorted.to_numpy().T.astype(float)
+    plain = 0
+    for b in np.flatnonzero(out == 0):
+        row, x0 = divmod(int(b), nc)
+        run = p[start[b]:start[row * nc + run_end[b]]]
+        for y in range(max(row - 1, 0), min(row + 2, nc)):
+            stencil = p[start[y * nc + max(x0 - 1, 0)]:start[y * nc + min(run_end[b] + 1, nc)]]
+            gap = np.abs(run[:, None, :] - stencil[None, :, :]).max(initial=0.0)
+            assert gap < box / 2, (b, y)
+        plain += 1
+    runs = int((out >= 0).sum())
+    low, high = {"middle": (0.99, 1.0), "below the upper edges": (0.3, 0.8), "astride the corner": (0.0, 0.5)}[where]
+    assert runs >= 50 and low <= plain / runs <= high
 
 
 @pytest.mark.parametrize("model", ["vicsek", "adaptive", "potential"])

@@ -481,13 +481,36 @@ def run_wraps(row, x0, x1, nc, boundary: ti.template()):
     """Whether the stencil of a run crosses a periodic edge. If not, the plain difference of two positions in it
     is already the minimum image: the run's window spans at most nc - 1 cells, so two agents in it are less than
     box - R apart along each axis, and a pair the direct difference puts further than R apart is as far through
-    the boundary. A window grid's cells may lie across the box's edge anywhere: always."""
+    the boundary. A window grid's cells may lie across the box's edge anywhere: always (see
+    :func:`window_run_wraps`)."""
     wraps = False
     if ti.static(boundary == PERIODIC):
         y = row % nc
         wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
     elif ti.static(boundary == WINDOW):
         wraps = True
+    return wraps
+
+
+@ti.func
+def window_run_wraps(row, x0, x1, nc, cell_size, box, bounds: ti.template(), anchor: ti.template()):
+    """:func:`run_wraps` for a 2D window grid (layout ``WINDOW``, one replica), from where its cells lie in the box.
+    Window cell c holds the agents whose minimum-image position relative to the `anchor` is in
+    [(bounds[0] + c) R, (bounds[0] + c + 1) R), R = `cell_size`, so the stencil of the run (cells x0 - 1 .. x1 by
+    y - 1 .. y + 1), widened by a cell either way for rounding and for agents clamped onto the window's edge, holds
+    raw positions in the rectangle computed here. When that rectangle lies inside [0, box)^2 and is less than
+    box / 2 wide, any two positions in it are less than box / 2 apart along each axis: their plain difference is
+    then what :func:`tflock.space.displacement` returns for the periodic box, bit for bit (it shifts only beyond
+    box / 2). A swarm away from the torus's edges thus skips the minimum image in most runs."""
+    y = row % nc
+    lo = ti.Vector([x0 - 2, y - 2])
+    hi = ti.Vector([x1 + 2, y + 3])
+    wraps = False
+    for d in ti.static(range(2)):
+        a = anchor[d, 0] + (bounds[0, d] + lo[d]) * cell_size
+        b = anchor[d, 0] + (bounds[0, d] + hi[d]) * cell_size
+        if a < 0 or b > box or b - a >= 0.5 * box:
+            wraps = True
     return wraps
 
 

@@ -76,10 +76,11 @@ from tflock.neighbors import (
     run_wraps,
     span_count,
     stencil_span,
+    window_run_wraps,
 )
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
-from tflock.space import PERIODIC, REFLECTING, displacement, wrap_periodic, wrap_pi, wrap_two_pi
+from tflock.space import PERIODIC, REFLECTING, WINDOW, displacement, wrap_periodic, wrap_pi, wrap_two_pi
 
 TWO_PI = 2 * math.pi
 # slots of the constants array
@@ -235,8 +236,9 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
 @ti.kernel
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
           zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
-          nc: ti.i32, n_buckets: ti.i32, layout: ti.template(), lane_wise: ti.template(), start: ti.types.ndarray(),
-          run_end: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+          nc: ti.i32, n_buckets: ti.i32, cell_size: float, layout: ti.template(), lane_wise: ti.template(),
+          start: ti.types.ndarray(), run_end: ti.types.ndarray(), bounds: ti.types.ndarray(),
+          anchor: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
           f_old: ti.types.ndarray(), i_old: ti.types.ndarray(), pos_new: ti.types.ndarray(),
           f_new: ti.types.ndarray(), i_new: ti.types.ndarray(), ids_new: ti.types.ndarray(),
@@ -253,7 +255,11 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
     if ti.static(lane_wise):
         for b in range(n_buckets):
             row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-            wraps = run_wraps(row, x0, x1, nc, layout)
+            wraps = True
+            if ti.static(layout == WINDOW):
+                wraps = window_run_wraps(row, x0, x1, nc, cell_size, c[WORLD], bounds, anchor)
+            else:
+                wraps = run_wraps(row, x0, x1, nc, layout)
             for block in range((a1 - a0 + LANES - 1) // LANES):
                 i0 = a0 + block * LANES
                 s = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
@@ -491,8 +497,9 @@ class Formation(Model):
             g = self.grid.geometry  # a bounded grid's layout is the build's
             va, va_next = self.va_position(t), self.va_position(t + 1)
             _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
-                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, g.boundary, self.lane_wise,
-                  self.grid.start, self.grid.runs() if self.lane_wise else self.grid.start, self.grid.order,
+                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, g.cell_size, g.boundary,
+                  self.lane_wise, self.grid.start, self.grid.runs() if self.lane_wise else self.grid.start,
+                  self.grid.bounds, self.grid.anchor, self.grid.order,
                   self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.f[a],
                   self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
             self.cur = b
