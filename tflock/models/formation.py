@@ -229,7 +229,7 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     i_new[IN_FLAG, s] = flag
     i_new[RAMP_START, s] = t_start
     ids_new[s] = i
-    rule[i] = r
+    rule[s] = r  # at the agent's new slot, beside its state (a write by agent id scattered over all of memory)
     return ti.select(df_holds(q, new, speed, va_next, c), 0, 1)
 
 
@@ -329,7 +329,7 @@ def _quantifier_blocks(n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: floa
             acc[3] += ti.select(inside, 1.0, 0.0)
             acc[4] += ti.select(ti.abs(wrap_pi(c[VA_HEADING] - th)) < c[BETA], 1.0, 0.0)
             acc[5] += f[SPEED, e]
-            acc[6] += ti.select(rule[e] == SEPARATION, 1.0, 0.0)  # agent order: a count, exact whatever the order
+            acc[6] += ti.select(rule[e] == SEPARATION, 1.0, 0.0)  # a count, exact whatever the order
             acc[7] += ti.select(df_holds(p, th, f[SPEED, e], va, c), 0.0, 1.0)
         for k in ti.static(range(8)):
             partial[blk, k] = acc[k]
@@ -359,7 +359,7 @@ def _frame_rows(m: ti.i32, n: ti.i32, selected: ti.types.ndarray(), ids: ti.type
         out[r, 0] = pos[0, e]
         out[r, 1] = pos[1, e]
         out[r, 2] = f[THETA, e]
-        out[r, 3] = rule[a]
+        out[r, 3] = rule[e]
 
 
 class Formation(Model):
@@ -390,7 +390,7 @@ class Formation(Model):
         self.ids = [ti.ndarray(ti.i32, n) for _ in range(2)]
         self.cur = 0
         self.payload = ti.ndarray(ftype, (2, n))
-        self.rule = ti.ndarray(ti.i32, n)  # what drove each agent at the last step (agent order)
+        self.rule = ti.ndarray(ti.i32, n)  # what drove each agent at the last step (in the state's order, as ids)
         self.where = ti.ndarray(ti.i32, n)
         self.bad = ti.ndarray(ti.i32, 1)
         self.tau = ti.ndarray(ti.i32, 1)
@@ -477,7 +477,9 @@ class Formation(Model):
 
     def rules(self) -> np.ndarray:
         """What drove each agent (agent order) at the last step: SEPARATION, INSIDE, OUTSIDE or FAILED."""
-        return self.rule.to_numpy()
+        rules = np.empty(self.params.n, dtype=np.int32)
+        rules[self.ids[self.cur].to_numpy()] = self.rule.to_numpy()
+        return rules
 
     def tau_reached(self) -> int | None:
         """The first step of the desired formation (uncapped), or None if not reached yet."""
