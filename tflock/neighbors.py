@@ -481,14 +481,13 @@ def run_wraps(row, x0, x1, nc, boundary: ti.template()):
     """Whether the stencil of a run crosses a periodic edge. If not, the plain difference of two positions in it
     is already the minimum image: the run's window spans at most nc - 1 cells, so two agents in it are less than
     box - R apart along each axis, and a pair the direct difference puts further than R apart is as far through
-    the boundary. A window grid's cells may lie across the box's edge anywhere: always (see
-    :func:`window_run_wraps`)."""
+    the boundary. A window grid's cells may lie across the box's edge anywhere: its runs ask
+    :func:`window_run_wraps`, which knows where the window lies."""
+    ti.static_assert(boundary != WINDOW, "a window grid's runs: window_run_wraps")
     wraps = False
     if ti.static(boundary == PERIODIC):
         y = row % nc
         wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
-    elif ti.static(boundary == WINDOW):
-        wraps = True
     return wraps
 
 

@@ -255,7 +255,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
     if ti.static(lane_wise):
         for b in range(n_buckets):
             row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-            wraps = True
+            wraps = True  # declared here: a static if's branches are scopes of their own
             if ti.static(layout == WINDOW):
                 wraps = window_run_wraps(row, x0, x1, nc, cell_size, c[WORLD], bounds, anchor)
             else:
