@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PRECISION
+from conftest import ARCH, PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
 from tflock.models.formation import Formation
@@ -357,6 +357,7 @@ def test_recording_and_state_round_trip(make_sim, tmp_path):
     assert np.array_equal(sim.model.state()["x"], later["x"])
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise step runs on the CPU only")
 @pytest.mark.parametrize("strategy", ["S-1.2", "S-2.2"])
 def test_lane_wise_step_equals_per_agent_step(engine, strategy):
     """The CPU's lane-wise step (runs of cells, 8 agents at a time) and the per-agent step (other arches) meet the
@@ -401,7 +402,7 @@ def test_window_grid_across_the_torus_edge(engine):
     rng = np.random.default_rng(7)
     state = rf.initial_state(p, 3)
     state["x"] = (rng.random((300, 2)) * 16.0 - 8.0) % 60.0
-    for lane_wise in (True, False):
+    for lane_wise in (True, False) if engine.arch == "cpu" else (False,):  # the lane-wise step is the CPU's
         model = Formation(p, 3, engine)
         model.lane_wise = lane_wise
         current = dict(state)

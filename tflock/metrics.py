@@ -13,6 +13,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from tflock.engine import current_engine
 from tflock.neighbors import (
     CellGrid,
     load_cell,
@@ -101,12 +102,29 @@ def _union(parent: ti.template(), a, z):
     return z
 
 
+@ti.func
+def _tally(n, parent: ti.template(), size: ti.template(), degree: ti.template(), result: ti.template()):
+    """From each slot's root in ``parent``: the component count, the largest component and the largest degree
+    in ``result`` (``size``: zeros on entry, each root's component size on exit)."""
+    for s in range(n):
+        ti.atomic_add(size[parent[s]], 1)
+    result[0] = 0
+    result[1] = 0
+    result[2] = 0
+    for s in range(n):
+        if parent[s] == s:
+            ti.atomic_add(result[0], 1)
+            ti.atomic_max(result[1], size[s])
+        ti.atomic_max(result[2], degree[s])
+
+
 @ti.kernel
 def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
-           result: ti.types.ndarray()):
+           boundary: ti.template(), dim: ti.template(), in_rounds: ti.template(), start: ti.types.ndarray(),
+           mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+           id_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray(),
+           degree: ti.types.ndarray(), result: ti.types.ndarray()):
+    """Degrees and, unless ``in_rounds`` (then :func:`_label_round` finds the components), the components."""
     for s in range(n):
         parent[s] = s
         size[s] = 0
@@ -125,31 +143,60 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                         w *= same_cell(coords_sorted, k, cell, boundary, dim)
                 count += w
         degree[id_sorted[s]] = count
-    for s in range(n):  # union(s, k) for every neighbour k < s
+    if ti.static(not in_rounds):
+        for s in range(n):  # union(s, k) for every neighbour k < s
+            p = load_vec(pos_sorted, s, dim)
+            c = load_cell(coords_sorted, s, dim)
+            root = s  # a recent root of s's set: saves walking s's chain for every neighbour
+            for o in range(ti.static(span_count(boundary, dim))):
+                lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+                begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+                for k in range(begin, ti.min(end, s)):
+                    d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                    if d.norm_sqr() <= radius * radius and (check == 0 or same_cell(coords_sorted, k, cell, boundary,
+                                                                                     dim) == 1):
+                        if parent[k] != root:  # k already hangs under s's root: nothing to merge
+                            root = _union(parent, root, k)
+        for s in range(n):
+            parent[s] = _find(parent, s)
+        _tally(n, parent, size, degree, result)
+
+
+@ti.kernel
+def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32, boundary: ti.template(),
+                 dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                 pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), label: ti.types.ndarray(),
+                 label_next: ti.types.ndarray(), changed: ti.types.ndarray()):
+    """One round of the components on Vulkan, with no atomics: each slot's next label is the smallest label among
+    itself and its neighbours, then that label's own label (a slot of the same component, so labels jump
+    ahead). ``changed[0]`` becomes nonzero when a label dropped. Labels only drop and stay slots of their component, so
+    rounds end, each component labelled by its smallest slot: the roots the one-pass union-find gives."""
+    for s in range(n):
         p = load_vec(pos_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)
-        root = s  # a recent root of s's set: saves walking s's chain for every neighbour
+        m = label[s]
         for o in range(ti.static(span_count(boundary, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
             begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
-            for k in range(begin, ti.min(end, s)):
+            for k in range(begin, end):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                if d.norm_sqr() <= radius * radius and (check == 0 or same_cell(coords_sorted, k, cell, boundary,
-                                                                                 dim) == 1):
-                    if parent[k] != root:  # k already hangs under s's root: nothing to merge
-                        root = _union(parent, root, k)
+                w = d.norm_sqr() <= radius * radius
+                if ti.static(boundary == OPEN):
+                    if check:
+                        w = w and same_cell(coords_sorted, k, cell, boundary, dim) == 1
+                m = ti.select(w, ti.min(m, label[k]), m)
+        m = label[m]
+        label_next[s] = m
+        if m != label[s]:
+            changed[0] = s + 1  # not a constant: Taichi 1.7's Vulkan backend stored a constant 1 every round
+
+
+@ti.kernel
+def _finish(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
+            result: ti.types.ndarray()):
     for s in range(n):
-        parent[s] = _find(parent, s)
-    for s in range(n):
-        ti.atomic_add(size[parent[s]], 1)
-    result[0] = 0
-    result[1] = 0
-    result[2] = 0
-    for s in range(n):
-        if parent[s] == s:
-            ti.atomic_add(result[0], 1)
-            ti.atomic_max(result[1], size[s])
-        ti.atomic_max(result[2], degree[s])
+        size[s] = 0
+    _tally(n, parent, size, degree, result)
 
 
 class NeighbourGraph:
@@ -163,12 +210,29 @@ class NeighbourGraph:
         self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
         self.result = ti.ndarray(ti.i32, 3)
         self.partial = ti.ndarray(ti.i64, n_blocks(n))
+        # on Vulkan the lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
+        # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
+        engine = current_engine()
+        self.in_rounds = engine is not None and engine.arch == "vulkan"
+        self.changed = ti.ndarray(ti.i32, 1) if self.in_rounds else None
 
     def _run(self, radius: float, box: float) -> None:
-        g = self.grid.geometry
-        _graph(self.grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.grid.start,
-               self.grid.mixed, self.grid.pos_sorted, self.grid.coords_sorted, self.grid.id_sorted, self.parent,
-               self.size, self.degree, self.result)
+        g, grid = self.grid.geometry, self.grid
+        _graph(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.in_rounds, grid.start,
+               grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.parent, self.size,
+               self.degree, self.result)
+        if self.in_rounds:  # labels alternate between parent and size; the last round changed nothing
+            label, label_next = self.parent, self.size
+            while True:
+                self.changed.fill(0)
+                _label_round(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
+                             grid.mixed, grid.pos_sorted, grid.coords_sorted, label, label_next, self.changed)
+                label, label_next = label_next, label
+                if not self.changed.to_numpy()[0]:
+                    break
+            if label is not self.parent:
+                self.parent.copy_from(label)
+            _finish(grid.n, self.parent, self.size, self.degree, self.result)
 
     def compute(self, radius: float, box: float) -> dict[str, float]:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""

@@ -770,11 +770,14 @@ class SubsetDrawing:
         # the default 4000 edges
         # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
         # and from a GPU), where a Taichi ndarray's to_numpy costs a copy kernel each
+        # the counting pass's unused offsets and edges are arrays of their own: on a GPU each NumPy argument is
+        # copied back after the kernel, and an unwritten alias of `counts` copied back last would undo the counts
         counts = np.zeros(n_sel, dtype=np.int32)
+        unused_offsets, unused_edges = np.zeros(1, dtype=np.int32), np.zeros((1, 2, g.dim), dtype=self.grid.real)
         counted, total, chunk = 0, 0, EDGE_CHUNK
         while counted < n_sel and total < max_edges:
             upto = min(n_sel, counted + chunk)
-            _pairs(counted, upto, *args, counts, counts, 0, False, counts)
+            _pairs(counted, upto, *args, counts, unused_offsets, 0, False, unused_edges)
             total = int(counts[:upto].sum())
             counted = upto
             chunk = int(1.25 * (max_edges - total) * counted / total) + EDGE_CHUNK if total else 2 * chunk
