@@ -231,6 +231,8 @@ BAD_INPUT = [
     pytest.param(["--config", "invalid.toml"], ["invalid.toml", "invalid TOML"], id="invalid-toml"),
     pytest.param(["--out", "x.txt"], ["--out", "x.txt", ".rrd"], id="out-not-rrd"),
     pytest.param(["--arch", "tpu"], ["engine.arch", "tpu", "cpu, cuda, vulkan, auto"], id="unknown-arch"),
+    pytest.param(["--arch", "vulkan", "--set", "engine.precision=f64"], ["engine.precision", "f64", "vulkan", "f32"],
+                 id="vulkan-f64"),
     pytest.param(["--steps", "-1"], ["steps", "must be >= 0", "-1"], id="steps-negative"),
     pytest.param(["--set", "params"], ["--set", "key=value", "params"], id="set-without-value"),
     pytest.param(["--model", "nosuch"], ["model", "nosuch", "vicsek"], id="unknown-model"),

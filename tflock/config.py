@@ -130,6 +130,13 @@ class EngineConfig(BaseModel):
         "f32", description="floating-point precision of the fields: f32 or f64"
     )
 
+    @model_validator(mode="after")
+    def _precision_on_arch(self) -> EngineConfig:
+        if self.arch == "vulkan" and self.precision == "f64":
+            raise _rule_error("must be f32 on vulkan (its shaders have no 64-bit sin, cos, atan2 or pow); "
+                              "f64 runs on cpu or cuda", self.precision, key="precision")
+        return self
+
 
 class LogConfig(BaseModel):
     """What goes into the Rerun recording, and how often."""

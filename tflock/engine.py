@@ -52,14 +52,17 @@ def _arch_name(arch: object) -> str:
 def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> EngineInfo:
     """Initialise Taichi once; later calls must ask for the same settings (or are no-ops when they do).
 
-    ``threads = 0`` uses every core. ``arch = "auto"`` takes CUDA, then Vulkan, then the CPU. Asking for a GPU
-    arch that this machine lacks is an error, not a silent fallback.
+    ``threads = 0`` uses every core. ``arch = "auto"`` takes CUDA, then Vulkan (f32 only), then the CPU. Asking
+    for a GPU arch that this machine lacks is an error, not a silent fallback.
     """
     global _current
     if arch not in ARCHES:
         raise EngineError(f"engine.arch: must be one of {', '.join(ARCHES)}, got {arch!r}")
     if precision not in PRECISIONS:
         raise EngineError(f"engine.precision: must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if arch == "vulkan" and precision == "f64":
+        raise EngineError("engine.precision: f64 is not available on vulkan (Taichi's Vulkan shaders have no 64-bit "
+                          "sin, cos, atan2 or pow); use f32 there, or cpu / cuda for f64")
     n_threads = threads if threads > 0 else (os.cpu_count() or 1)
     if _current is not None:
         same = _current.requested_arch == arch and _current.precision == precision
@@ -73,7 +76,7 @@ def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> 
     # a GPU arch that is missing logs fallback warnings; our own one-line error replaces them
     quiet = ti.WARN if arch == "cpu" else ti.ERROR
     common = dict(default_fp=fp, default_ip=ti.i32, cpu_max_num_threads=n_threads, log_level=quiet)
-    arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu]}
+    arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu] if precision == "f32" else [ti.cuda, ti.cpu]}
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
         ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
     if arch not in arches:
