@@ -26,6 +26,15 @@ def engine():
     return init_engine(ARCH, 0, PRECISION)
 
 
+@pytest.fixture(scope="session")
+def cpu_engine(engine):
+    """The engine, for tests that run tflock's default engine (cpu) in this process: through the CLI, a sweep or
+    the README's example. Skipped when this process runs another arch (TFLOCK_TEST_ARCH)."""
+    if ARCH != "cpu":
+        pytest.skip(f"runs tflock's default engine (cpu) in this process, which runs {ARCH}")
+    return engine
+
+
 @pytest.fixture
 def make_sim(engine):
     """Simulation factory at the session's precision and arch, recording off unless asked."""

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 
-def test_readme_example(engine, tmp_path):
+def test_readme_example(cpu_engine, tmp_path):
     import tflock
 
     sim = tflock.Simulation(model="vicsek", params={"n": 2000, "box": 31.6, "noise": 0.3}, steps=50,
-                            engine={"precision": engine.precision}, record=tmp_path / "run.rrd")
+                            engine={"precision": cpu_engine.precision}, record=tmp_path / "run.rrd")
     sim.step(10)                        # advance 10 steps
     state = sim.state()                 # {"x": (n, 2), "theta": (n,), "step": 10}
     sim.run()                           # up to the configured 50 steps
@@ -22,12 +22,12 @@ def test_readme_example(engine, tmp_path):
     assert (tmp_path / "run.metrics.csv").read_text().count("\n") == 52
 
 
-def test_config_sources_and_overrides(engine, tmp_path):
+def test_config_sources_and_overrides(cpu_engine, tmp_path):
     from tflock import Simulation, load_config
     from tflock.config import ConfigError
 
     path = tmp_path / "run.toml"
-    path.write_text(f'model = "vicsek"\nsteps = 5\n[engine]\nprecision = "{engine.precision}"\n'
+    path.write_text(f'model = "vicsek"\nsteps = 5\n[engine]\nprecision = "{cpu_engine.precision}"\n'
                     '[params]\nn = 300\nbox = 10.0\n')
     a = Simulation(path, overrides=["params.noise=0.1"])
     b = Simulation(load_config(path, overrides={"params.noise": 0.1}))

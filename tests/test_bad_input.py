@@ -403,19 +403,19 @@ def test_sim_outputs(workdir: Path, no_engine: None, args: list[str], needles: l
     refused_cleanly(["sim", *SMALL, *args], workdir, *needles)
 
 
-def test_resume_of_a_checkpoint_that_does_not_match_its_config(workdir: Path, engine: Any) -> None:
+def test_resume_of_a_checkpoint_that_does_not_match_its_config(workdir: Path, cpu_engine: Any) -> None:
     """Its config is valid, so the engine starts (at this session's settings); the arrays are refused."""
     refused_cleanly(["sim", "--resume", "mismatch.npz", "--no-log"], workdir, "--resume", "does not match")
 
 
-def test_spawn_without_a_display(workdir: Path, engine: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_spawn_without_a_display(workdir: Path, cpu_engine: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     refused_cleanly(["sim", *SMALL, "--set", f"engine.precision={PRECISION}", "--spawn"], workdir,
                     "--spawn", "display")
 
 
-def test_connect_to_a_bad_url(workdir: Path, engine: Any) -> None:
+def test_connect_to_a_bad_url(workdir: Path, cpu_engine: Any) -> None:
     refused_cleanly(["sim", *SMALL, "--set", f"engine.precision={PRECISION}", "--connect", "notaurl"], workdir,
                     "notaurl")
 

@@ -86,7 +86,7 @@ def test_adaptive_transient_time_per_replica(engine):
     ("vicsek", {"n": 30, "box": 4.0, "noise": 0.5}),
     ("potential", {"n": 6}),  # not batched: replicas run one by one
 ])
-def test_run_replicas_equals_simulations(engine, model, params, monkeypatch):
+def test_run_replicas_equals_simulations(cpu_engine, model, params, monkeypatch):
     """Each table of run_replicas is the Simulation.metrics() table of the run with seed + r, also when the
     replicas are split over several batches."""
     import tflock.ensemble

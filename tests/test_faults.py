@@ -73,7 +73,7 @@ def steps_of(csv_path: Path) -> list[int]:
 
 @pytest.mark.parametrize("model", list(MODELS))
 def test_injected_fault_stops_with_a_valid_recording_and_a_resumable_checkpoint(
-        engine: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, model: str) -> None:
+        cpu_engine: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, model: str) -> None:
     overrides, _, _, quantity = MODELS[model]
     poison_at(monkeypatch, model, FAULT_STEP, POISONED)
     sets = [arg for o in overrides for arg in ("--set", o)]
@@ -101,7 +101,7 @@ def test_injected_fault_stops_with_a_valid_recording_and_a_resumable_checkpoint(
     assert int(read_checkpoint(tmp_path / "resumed.lastgood.npz")["step"]) == FAULT_STEP - 1
 
 
-def test_replay_from_the_start_finds_the_same_step(engine: Any, tmp_path: Path,
+def test_replay_from_the_start_finds_the_same_step(cpu_engine: Any, tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """With no good copy kept after the start, the replay covers every step from 0, to the same answer; the
     --checkpoint file receives the last good state."""
@@ -128,7 +128,7 @@ def test_python_api_raises_with_the_details(make_sim: Any, tmp_path: Path, monke
 
 
 def test_a_non_finite_start_state_is_refused_before_anything_is_written(
-        engine: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        cpu_engine: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import tflock.models.vicsek as vicsek
 
     initial = vicsek.initial_state
@@ -149,7 +149,7 @@ def test_a_non_finite_start_state_is_refused_before_anything_is_written(
 BLOW_UP_DT = {"f64": 10.0, "f32": 1.0}
 
 
-def test_real_blow_up_is_found_at_its_exact_step(make_sim: Any, engine: Any, tmp_path: Path) -> None:
+def test_real_blow_up_is_found_at_its_exact_step(make_sim: Any, cpu_engine: Any, tmp_path: Path) -> None:
     params = {"n": 20, "box": 5.0, "dt": BLOW_UP_DT[PRECISION], "min_separation": 0.0, "topology": "fixed",
               "graph": "complete"}
     reference = make_sim(model="potential", params=params, steps=400)

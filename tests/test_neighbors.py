@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import taichi as ti
-from conftest import ARCH
+from conftest import ARCH, PRECISION
 
 from tflock import reference as ref
 from tflock.config import load_config
@@ -32,6 +32,8 @@ def test_degrees_match_brute_force(engine, boundary, box, radius):
     assert np.array_equal(model.graph.degree.to_numpy(), expected)
 
 
+@pytest.mark.skipif(PRECISION == "f32", reason="f32 resolves positions 1e6 from the origin to 0.06-0.12 only: the "
+                    "float64 brute force then sees other pairs")
 def test_open_space_far_apart_groups(engine):
     """Open space assumes no box: groups 1e6 units apart are found, and never mixed by the hash."""
     rng = np.random.default_rng(0)

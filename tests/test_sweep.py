@@ -54,7 +54,7 @@ def sweep_file(tmp_path: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory: pytest.TempPathFactory, engine) -> pd.DataFrame:
+def reference(tmp_path_factory: pytest.TempPathFactory, cpu_engine) -> pd.DataFrame:
     """The tiny sweep run in this process, uninterrupted."""
     folder = tmp_path_factory.mktemp("reference")
     (folder / "tiny.toml").write_text(SWEEP, encoding="utf-8")
@@ -149,7 +149,7 @@ def test_table_has_a_row_per_point_and_replica(reference: pd.DataFrame) -> None:
         assert (config.seed, config.params.noise, config.params.radius) == (row.seed, row[4], row[5])
 
 
-def test_rows_summarise_the_simulation(engine, make_sim) -> None:
+def test_rows_summarise_the_simulation(cpu_engine, make_sim) -> None:
     config = {"model": "vicsek", "steps": 6, "params": {"n": 30, "box": 4.0, "noise": 1.0},
               "engine": {"precision": PRECISION}}
     rows = run_point(config, 2, 3)
