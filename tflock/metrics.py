@@ -3,7 +3,8 @@
 Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
 partials are added in NumPy, so metrics do not change with the thread count. Clusters are the connected
 components of the graph |x_i - x_j| <= R, found with a lock-free parallel union-find (hooking by ``atomic_min``,
-so each component's root is its smallest cell-sorted slot, whatever the thread timing).
+so each component's root is its smallest cell-sorted slot, whatever the thread timing); on Vulkan, whose compiler
+mishandles that union-find, by rounds of smallest labels, which give the same roots.
 """
 
 
@@ -188,7 +189,8 @@ def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti
         m = label[m]
         label_next[s] = m
         if m != label[s]:
-            changed[0] = s + 1  # not a constant: Taichi 1.7's Vulkan backend stored a constant 1 every round
+            changed[0] = s + 1  # not a constant: a constant stored here came back set in rounds where no label
+            # dropped (Taichi 1.7's Vulkan backend), so the rounds never ended
 
 
 @ti.kernel
