@@ -167,11 +167,12 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
 def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32, boundary: ti.template(),
                  dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
                  pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), label: ti.types.ndarray(),
-                 label_next: ti.types.ndarray(), changed: ti.types.ndarray()):
+                 label_next: ti.types.ndarray(), round_no: ti.i32, changed: ti.types.ndarray()):
     """One round of the components on Vulkan, with no atomics: each slot's next label is the smallest label among
     itself and its neighbours, then that label's own label (a slot of the same component, so labels jump
-    ahead). ``changed[0]`` becomes nonzero when a label dropped. Labels only drop and stay slots of their component, so
-    rounds end, each component labelled by its smallest slot: the roots the one-pass union-find gives."""
+    ahead). ``changed[0]`` becomes ``round_no`` when a label dropped. Labels only drop and stay slots of their
+    component, so rounds end, each component labelled by its smallest slot: the roots the one-pass union-find
+    gives."""
     for s in range(n):
         p = load_vec(pos_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)
@@ -189,8 +190,8 @@ def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti
         m = label[m]
         label_next[s] = m
         if m != label[s]:
-            changed[0] = s + 1  # not a constant: a constant stored here came back set in rounds where no label
-            # dropped (Taichi 1.7's Vulkan backend), so the rounds never ended
+            changed[0] = round_no  # not a constant: a constant stored here came back set in rounds where no
+            # label dropped (Taichi 1.7's Vulkan backend), so the rounds never ended
 
 
 @ti.kernel
@@ -223,17 +224,15 @@ class NeighbourGraph:
         _graph(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.in_rounds, grid.start,
                grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.parent, self.size,
                self.degree, self.result)
-        if self.in_rounds:  # labels alternate between parent and size; the last round changed nothing
-            label, label_next = self.parent, self.size
-            while True:
-                self.changed.fill(0)
+        if self.in_rounds:  # labels alternate between parent and size, until a round changes none
+            self.changed.fill(0)
+            round_no = 0
+            while round_no == 0 or self.changed.to_numpy()[0] == round_no:
+                round_no += 1
                 _label_round(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
-                             grid.mixed, grid.pos_sorted, grid.coords_sorted, label, label_next, self.changed)
-                label, label_next = label_next, label
-                if not self.changed.to_numpy()[0]:
-                    break
-            if label is not self.parent:
-                self.parent.copy_from(label)
+                             grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent, self.size, round_no,
+                             self.changed)
+                self.parent, self.size = self.size, self.parent  # the new labels are the parents
             _finish(grid.n, self.parent, self.size, self.degree, self.result)
 
     def compute(self, radius: float, box: float) -> dict[str, float]:
