@@ -10,10 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import taichi as ti
 from conftest import ARCH, PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
-from tflock.models.formation import Formation
+from tflock.models.formation import CAP, CAP_BEYOND, TURN_MARGIN, Formation, capped_turn, unit_force
 from tflock.models.formation_params import FAILED, INSIDE, OUTSIDE, SEPARATION, STRATEGIES
 from tflock.reference import formation as rf
 from tflock.reference import wrap_pi
@@ -177,6 +178,42 @@ def test_turns_never_exceed_caps(engine):
         assert turn[rules == SEPARATION].max(initial=0) <= math.radians(3.0) + ATOL
         assert turn[rules != SEPARATION].max(initial=0) <= math.radians(1.5) + ATOL
     assert {SEPARATION, INSIDE, OUTSIDE} <= seen
+
+
+@ti.kernel
+def _turns(v: ti.types.ndarray(), theta: ti.types.ndarray(), cap: float, cos_beyond: float,
+           out: ti.types.ndarray()):
+    for i in range(theta.shape[0]):
+        th = theta[i]
+        w = ti.Vector([v[0, i], v[1, i]])
+        out[0, i] = capped_turn(w, th, ti.Vector([ti.cos(th), ti.sin(th)]), cap, cos_beyond)
+        out[1, i] = unit_force(ti.atan2(w[1], w[0]), th, cap)
+
+
+@pytest.mark.parametrize("cap_deg", [1e-4, 1.0, 2.0, 30.0, 179.9, 180.0])
+def test_capped_turn_is_the_clamped_atan2_bit_for_bit(engine, cap_deg):
+    """The turn without atan2 where the cap decides it gives the formula's bits: random directions and lengths,
+    targets just inside and outside the cap and the margin, straight ahead and behind, v = 0."""
+    rng = np.random.default_rng(3)
+    n = 20000
+    theta = rng.uniform(0, 2 * math.pi, n)
+    cap = math.radians(cap_deg)
+    offsets = np.concatenate([rng.uniform(-math.pi, math.pi, n // 2),
+                              np.repeat([0.0, math.pi, -math.pi, cap, -cap, cap + TURN_MARGIN, -cap - TURN_MARGIN,
+                                         math.pi - TURN_MARGIN, cap * (1 + 1e-9), cap * (1 - 1e-9)], n // 20)])
+    length = 10.0 ** rng.uniform(-6, 4, n)
+    v = length * np.stack([np.cos(theta + offsets), np.sin(theta + offsets)])
+    v[:, :10] = 0.0
+    v[:, 10:20] = np.array([[-1.0, 1.0, 0.0, 0.0, -2.0, 3.0, -0.5, 0.5, -1e-30, 1e30]] * 2)
+    theta[10:20] = [0.0, math.pi, math.pi / 2, 3 * math.pi / 2, 0.0, math.pi, 0.0, math.pi, 0.0, math.pi]
+    real = engine.real
+    out = ti.ndarray(ti.f32 if real == np.float32 else ti.f64, (2, n))
+    c = Formation(params(max_turn_deg=cap_deg), 0, engine)._constants()
+    _turns(v.astype(real), theta.astype(real), c[CAP], c[CAP_BEYOND], out)
+    fast, formula = out.to_numpy()
+    assert np.array_equal(fast, formula)
+    if cap_deg <= 30:  # most turns decided by the cap: the path without atan2 ran
+        assert np.mean(np.abs(formula) == real(cap)) > 0.3
 
 
 def test_full_failure_goes_straight(engine):

@@ -85,19 +85,41 @@ from tflock.space import PERIODIC, REFLECTING, WINDOW, displacement, wrap_period
 TWO_PI = 2 * math.pi
 # slots of the constants array
 R2, ALIGN2, SEP2, VAIR2, WORLD, CAP, SEP_CAP, W_A, W_C, W_AV, W_CV, VA_HEADING, FAIL, NOISE, VA_SPEED, OUT_SPEED, \
-    JITTER, RAMP_TIME, BETA, N_CONSTS = range(20)
+    JITTER, RAMP_TIME, BETA, CAP_BEYOND, SEP_CAP_BEYOND, N_CONSTS = range(22)
 # rows of the float and int state arrays
 THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
 IN_FLAG, RAMP_START = range(2)
 RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
 VA_COLOR = (255, 210, 0)
 SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
+#: radians: where the angle to a force's target lies this far beyond the cap (and this far short of a reversal), the
+#: capped turn is taken without atan2 (see :func:`capped_turn`)
+TURN_MARGIN = 1e-3
+COS_TURN_MARGIN = math.cos(TURN_MARGIN)
 
 
 @ti.func
 def unit_force(target, theta, cap):
     """The turn toward `target`, at most `cap` either way."""
     return ti.math.clamp(wrap_pi(target - theta), -cap, cap)
+
+
+@ti.func
+def capped_turn(v, theta, heading, cap, cos_beyond):
+    """``unit_force(atan2(v[1], v[0]), theta, cap)``, the turn toward the direction of v, with no atan2 where the
+    cap decides it. `heading` is (cos theta, sin theta), `cos_beyond` = cos(min(cap + TURN_MARGIN, pi)). Where the
+    angle a between heading and v lies in (cap + TURN_MARGIN, pi - TURN_MARGIN), the clamped turn is +-cap, signed
+    as heading x v; the margin is thousands of times the rounding of either test, so the two give the same bits.
+    Elsewhere (a turn within the cap or near it, a near reversal, v = 0 or not finite) the formula itself."""
+    cross = heading[0] * v[1] - heading[1] * v[0]
+    dot = heading[0] * v[0] + heading[1] * v[1]
+    norm = v.norm()
+    turn = 0.0
+    if dot < norm * cos_beyond and dot > -norm * COS_TURN_MARGIN:
+        turn = ti.select(cross > 0, cap, -cap)
+    else:
+        turn = unit_force(ti.atan2(v[1], v[0]), theta, cap)
+    return turn
 
 
 @ti.func
@@ -161,7 +183,7 @@ def _scan(begin, end, me, px, py, a_cos, a_sin, c_x, c_y, met, best, best_id, aw
 def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, a_sin, c_x, c_y, met, best, away,
              order: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), f_old: ti.template(),
              i_old: ti.template(), pos_new: ti.template(), f_new: ti.template(), i_new: ti.template(),
-             ids_new: ti.template(), rule: ti.template()):
+             ids_new: ti.template(), rule: ti.template(), payload: ti.template()):
     """Steps 2-6 for the agent at slot s, from its neighbour sums and `met` (see :func:`_scan`): the new state is
     written at slot s. Returns 1 when the agent is outside the desired formation afterwards (Definition 1), else
     0."""
@@ -169,6 +191,7 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     e = order[s]
     p = load_vec(pos_sorted, s, 2)
     th = f_old[THETA, e]
+    heading = ti.Vector([payload[0, s], payload[1, s]])  # cos th, sin th
     dva = displacement(p, va, c[WORLD], PERIODIC)
     inside = dva.norm_sqr() <= c[VAIR2]
     # the turn: a failed agent's is 0, else Fs alone when separating, else the weighted mean; only the forces the
@@ -181,23 +204,23 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     if failed:
         r = FAILED
     elif best < c[SEP2]:  # eq. (4)
-        force = unit_force(ti.atan2(away[1], away[0]), th, c[SEP_CAP])
+        force = capped_turn(away, th, heading, c[SEP_CAP], c[SEP_CAP_BEYOND])
         r = SEPARATION
     else:
         active = ti.select(inside, in_set, out_set) & (met | VA_ALIGN | VA_COHESION)
         num = 0.0
         den = 0.0
         if (active & ALIGN) != 0:
-            num += c[W_A] * unit_force(ti.atan2(a_sin, a_cos), th, c[CAP])
+            num += c[W_A] * capped_turn(ti.Vector([a_cos, a_sin]), th, heading, c[CAP], c[CAP_BEYOND])
             den += c[W_A]
         if (active & COHESION) != 0:
-            num += c[W_C] * unit_force(ti.atan2(c_y, c_x), th, c[CAP])
+            num += c[W_C] * capped_turn(ti.Vector([c_x, c_y]), th, heading, c[CAP], c[CAP_BEYOND])
             den += c[W_C]
         if (active & VA_ALIGN) != 0:
             num += c[W_AV] * unit_force(c[VA_HEADING], th, c[CAP])
             den += c[W_AV]
         if (active & VA_COHESION) != 0:
-            num += c[W_CV] * unit_force(ti.atan2(dva[1], dva[0]), th, c[CAP])
+            num += c[W_CV] * capped_turn(dva, th, heading, c[CAP], c[CAP_BEYOND])
             den += c[W_CV]
         if den > 0:
             force = num / den  # eq. (3)
@@ -286,7 +309,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                     outside += _advance(i0 + k, t, seed, c, out_set, in_set, ti.Vector([va_x, va_y]),
                                         ti.Vector([next_x, next_y]), a_cos[k], a_sin[k], c_x[k], c_y[k], met[k],
                                         best[k], ti.Vector([away_x[k], away_y[k]]), order, id_sorted, pos_sorted,
-                                        f_old, i_old, pos_new, f_new, i_new, ids_new, rule)
+                                        f_old, i_old, pos_new, f_new, i_new, ids_new, rule, payload)
                 if outside:
                     ti.atomic_add(bad[0], outside)
     else:
@@ -302,7 +325,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                     best_id, away_x, away_y, c, zones, True, id_sorted, pos_sorted, payload)
             if _advance(s, t, seed, c, out_set, in_set, ti.Vector([va_x, va_y]), ti.Vector([next_x, next_y]),
                         a_cos[0], a_sin[0], c_x[0], c_y[0], met[0], best[0], ti.Vector([away_x[0], away_y[0]]),
-                        order, id_sorted, pos_sorted, f_old, i_old, pos_new, f_new, i_new, ids_new, rule):
+                        order, id_sorted, pos_sorted, f_old, i_old, pos_new, f_new, i_new, ids_new, rule, payload):
                 ti.atomic_add(bad[0], 1)
     if bad[0] == 0 and tau[0] < 0:
         tau[0] = t + 1
@@ -416,6 +439,7 @@ class Formation(Model):
         c[FAIL], c[NOISE] = p.fail_prob, math.radians(p.noise_deg)
         c[VA_SPEED], c[OUT_SPEED], c[JITTER], c[RAMP_TIME] = p.va_speed, p.out_speed, p.ramp_jitter, p.ramp_time
         c[BETA] = math.radians(p.beta_lim_deg)
+        c[CAP_BEYOND], c[SEP_CAP_BEYOND] = (math.cos(min(cap + TURN_MARGIN, math.pi)) for cap in (c[CAP], c[SEP_CAP]))
         return c
 
     def va_position(self, step: int | None = None) -> np.ndarray:
