@@ -37,7 +37,6 @@ def _broken_two(a: ti.types.ndarray()):
 
 
 def test_memoized_messages_equal_taichi_own(engine, monkeypatch):
-    memoize_position_messages()
     memoized = ASTTransformerContext.get_pos_info
     assert hasattr(memoized, "original"), "installed when tflock.engine is imported"
     memoize_position_messages()  # idempotent: no second layer
