@@ -19,8 +19,10 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # before the import: n
 import taichi as ti  # noqa: E402
 
 from tflock.taichi_frontend import memoize_position_messages  # noqa: E402
+from tflock.taichi_host import copy_on_host  # noqa: E402
 
 memoize_position_messages()
+copy_on_host()
 
 ARCHES = ("cpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")

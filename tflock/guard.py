@@ -1,7 +1,8 @@
 """The non-finite guard: the first agent whose position, heading or velocity is nan or infinite.
 
-One parallel pass over each guarded state array finds the smallest agent id holding a non-finite value (a bit
-test on the exponent: Taichi's fast math folds float comparisons with nan away). Arrays kept in cell order map
+One pass over each guarded state array finds the smallest agent id holding a non-finite value: NumPy over the
+array's memory on the CPU, a parallel kernel on GPU arches (a bit test on the exponent: Taichi's fast math folds
+float comparisons with nan away). Arrays kept in cell order map
 their slots to agent ids through the model's ``ids`` array.
 """
 
@@ -11,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
+
+from tflock.taichi_host import host_view
 
 NO_AGENT = 2**31 - 1
 
@@ -64,6 +67,28 @@ def first_non_finite(guarded: Sequence[Guarded], ids: ti.Ndarray) -> tuple[int, 
     """``(agent, quantity)`` of the smallest agent id with a non-finite value in any guarded array (the first
     quantity in ``guarded`` order for that agent), or None when all are finite. ``ids[s]`` is the agent at slot
     ``s`` of the arrays (models keep agents in cell order)."""
+    ids_view = host_view(ids)
+    if ids_view is None:
+        return kernel_first_non_finite(guarded, ids)
+    found = []
+    for g in guarded:  # CPU: NumPy over the arrays' own memory (no kernel to compile, no copy)
+        view = host_view(g.array)
+        lo, hi = g.rows or (0, view.shape[0])
+        bad = ~np.isfinite(view if view.ndim == 1 else view[lo:hi])
+        if view.ndim > 1:
+            bad = bad.any(axis=0)
+        found.append(int(ids_view[bad].min()) if bad.any() else NO_AGENT)
+    return _first(found, guarded)
+
+
+def _first(found: Sequence[int], guarded: Sequence[Guarded]) -> tuple[int, str] | None:
+    """The smallest agent of each array's smallest bad agents, with the first such array's quantity."""
+    k = int(np.argmin(found))
+    return None if found[k] == NO_AGENT else (int(found[k]), guarded[k].quantity)
+
+
+def kernel_first_non_finite(guarded: Sequence[Guarded], ids: ti.Ndarray) -> tuple[int, str] | None:
+    """:func:`first_non_finite` on GPU arches: one parallel pass over each array."""
     out = _results(len(guarded))
     for k, g in enumerate(guarded):
         wide = g.array.dtype == ti.f64
@@ -72,6 +97,4 @@ def first_non_finite(guarded: Sequence[Guarded], ids: ti.Ndarray) -> tuple[int, 
         else:
             lo, hi = g.rows or (0, g.array.shape[0])
             _first_bad_row(g.array, lo, hi - lo, wide, ids, out, k)
-    found = out.to_numpy()
-    k = int(np.argmin(found))
-    return None if found[k] == NO_AGENT else (int(found[k]), guarded[k].quantity)
+    return _first(out.to_numpy(), guarded)

@@ -1,7 +1,8 @@
 """Order parameters and neighbour-graph metrics computed in kernels over all agents (DESIGN.md section 4).
 
 Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
-partials are added in NumPy, so metrics do not change with the thread count. Clusters are the connected
+partials are added in NumPy (plain sums and means on the CPU: NumPy over the ndarray's memory), so metrics do not
+change with the thread count. Clusters are the connected
 components of the graph |x_i - x_j| <= R, found with a lock-free parallel union-find (hooking by ``atomic_min``,
 so each component's root is its smallest cell-sorted slot, whatever the thread timing); on Vulkan, whose compiler
 mishandles that union-find, by rounds of smallest labels, which give the same roots.
@@ -26,6 +27,7 @@ from tflock.neighbors import (
 )
 from tflock.rng import Stream, hash_ti, randint_ti
 from tflock.space import OPEN, displacement, wrap_pi
+from tflock.taichi_host import host_view
 
 BLOCK = 4096
 
@@ -212,7 +214,6 @@ class NeighbourGraph:
         self.size = ti.ndarray(ti.i32, n)
         self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
         self.result = ti.ndarray(ti.i32, 3)
-        self.partial = ti.ndarray(ti.i64, n_blocks(n))
         # on Vulkan the lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
@@ -239,12 +240,11 @@ class NeighbourGraph:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""
         n = self.grid.n
         self._run(radius, box)
-        _block_sums(self.degree, n, self.partial)
         clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())
         return {
             "clusters": float(clusters),
             "largest_cluster": largest / n,
-            "mean_neighbors": float(self.partial.to_numpy().sum()) / n,
+            "mean_neighbors": mean(self.degree, n),
             "max_neighbors": float(max_degree),
         }
 
@@ -280,11 +280,27 @@ def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray
         partial[blk] = total
 
 
-def mean(values: ti.Ndarray, n: int) -> float:
-    """Deterministic mean of an (n,) ndarray (floats, or ints summed exactly per block)."""
-    partial = _scratch((n_blocks(n),), values.dtype)
+def total(values: ti.Ndarray, n: int) -> float:
+    """Deterministic sum of ``values[:n]`` (ints exactly). On the CPU NumPy sums the ndarray's own memory (floats
+    in f64): no kernel to compile, no copy; elsewhere a kernel sums blocks (floats in their own type, ints in i64)
+    and NumPy adds the blocks."""
+    view = host_view(values)
+    if view is None:
+        return kernel_total(values, n)
+    return float(view[:n].sum(dtype=np.float64 if view.dtype.kind == "f" else np.int64))
+
+
+def kernel_total(values: ti.Ndarray, n: int) -> float:
+    """:func:`total` on GPU arches: block sums in a kernel, added in NumPy."""
+    real = values.dtype in (ti.f32, ti.f64)
+    partial = _scratch((n_blocks(n),), values.dtype if real else ti.i64)
     _block_sums(values, n, partial)
-    return float(partial.to_numpy().astype(np.float64).sum()) / n
+    return float(partial.to_numpy().astype(np.float64 if real else np.int64).sum())
+
+
+def mean(values: ti.Ndarray, n: int) -> float:
+    """Deterministic mean of an (n,) ndarray: :func:`total` / n."""
+    return total(values, n) / n
 
 
 #: up to this many agents, e_d and e_theta are exact (all n (n - 1) / 2 pairs); above, estimates
