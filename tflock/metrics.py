@@ -131,26 +131,28 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
     for s in range(n):
         parent[s] = s
         size[s] = 0
-    for s in range(n):  # degrees: branch-free, vectorisable
-        p = load_vec(pos_sorted, s, dim)
-        c = load_cell(coords_sorted, s, dim)
-        count = 0
-        for o in range(ti.static(span_count(boundary, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
-            for k in range(begin, end):
-                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
-                if ti.static(boundary == OPEN):
-                    if check:
-                        w *= same_cell(coords_sorted, k, cell, boundary, dim)
-                count += w
-        degree[id_sorted[s]] = count
-    if ti.static(not in_rounds):
-        for s in range(n):  # union(s, k) for every neighbour k < s
+    if ti.static(in_rounds):
+        for s in range(n):  # degrees: branch-free
+            p = load_vec(pos_sorted, s, dim)
+            c = load_cell(coords_sorted, s, dim)
+            count = 0
+            for o in range(ti.static(span_count(boundary, dim))):
+                lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+                begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+                for k in range(begin, end):
+                    d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                    w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
+                    if ti.static(boundary == OPEN):
+                        if check:
+                            w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                    count += w
+            degree[id_sorted[s]] = count
+    else:
+        for s in range(n):  # each pair within R once, from its later slot: union the two, count it for both
             p = load_vec(pos_sorted, s, dim)
             c = load_cell(coords_sorted, s, dim)
             root = s  # a recent root of s's set: saves walking s's chain for every neighbour
+            count = 0
             for o in range(ti.static(span_count(boundary, dim))):
                 lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
                 begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
@@ -158,9 +160,14 @@ def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                     d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                     if d.norm_sqr() <= radius * radius and (check == 0 or same_cell(coords_sorted, k, cell, boundary,
                                                                                      dim) == 1):
+                        count += 1
+                        ti.atomic_add(size[k], 1)  # degrees in slot order for now
                         if parent[k] != root:  # k already hangs under s's root: nothing to merge
                             root = _union(parent, root, k)
+            ti.atomic_add(size[s], count)
         for s in range(n):
+            degree[id_sorted[s]] = size[s]
+            size[s] = 0
             parent[s] = _find(parent, s)
         _tally(n, parent, size, degree, result)
 
