@@ -101,6 +101,7 @@ def test_total_equals_the_kernel_sum(engine, dtype):
 @pytest.mark.parametrize("wide", [False, True], ids=["f32", "f64"])
 def test_guard_finds_what_its_kernel_finds(engine, wide):
     real = np.float64 if wide else np.float32
+    huge = np.finfo(real).max / 2
     n = 300
     ids = ti.ndarray(ti.i32, n)
     ids.from_numpy(np.random.default_rng(3).permutation(n).astype(np.int32))
@@ -125,8 +126,9 @@ def test_guard_finds_what_its_kernel_finds(engine, wide):
         [(rows, (0, slot_of[3]), np.nan), (rows, (2, slot_of[8]), np.nan)],  # row 0 is not guarded
         [(rows, (1, slot_of[8]), np.nan), (rows, (2, slot_of[8]), np.inf)],  # a tie: the first quantity
         [(heading, slot_of[0], np.nan), (pos, (1, slot_of[0]), np.nan)],
+        [(pos, (0, slice(0, 3)), huge)],  # finite values whose sum overflows: still finite
     ]
-    expected = [None, (40, "position"), (12, "heading"), (8, "velocity"), (8, "heading"), (0, "position")]
+    expected = [None, (40, "position"), (12, "heading"), (8, "velocity"), (8, "heading"), (0, "position"), None]
     for case, want in zip(cases, expected, strict=True):
         for array in (pos, rows, heading):
             array.fill(0.5)

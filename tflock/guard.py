@@ -74,7 +74,13 @@ def first_non_finite(guarded: Sequence[Guarded], ids: ti.Ndarray) -> tuple[int, 
     for g in guarded:  # CPU: NumPy over the arrays' own memory (no kernel to compile, no copy)
         view = host_view(g.array)
         lo, hi = g.rows or (0, view.shape[0])
-        bad = ~np.isfinite(view if view.ndim == 1 else view[lo:hi])
+        values = view if view.ndim == 1 else view[lo:hi]
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = values.sum()
+        if np.isfinite(total):  # nan and inf carry through a sum: all finite (a sum that overflows looks closer)
+            found.append(NO_AGENT)
+            continue
+        bad = ~np.isfinite(values)
         if view.ndim > 1:
             bad = bad.any(axis=0)
         found.append(int(ids_view[bad].min()) if bad.any() else NO_AGENT)
