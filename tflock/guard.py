@@ -2,8 +2,8 @@
 
 One pass over each guarded state array finds the smallest agent id holding a non-finite value: NumPy over the
 array's memory on the CPU, a parallel kernel on GPU arches (a bit test on the exponent: Taichi's fast math folds
-float comparisons with nan away). Arrays kept in cell order map
-their slots to agent ids through the model's ``ids`` array.
+float comparisons with nan away). Arrays kept in cell order map their slots to agent ids through the model's
+``ids`` array.
 """
 
 import functools

@@ -2,10 +2,10 @@
 
 Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
 partials are added in NumPy (plain sums and means on the CPU: NumPy over the ndarray's memory), so metrics do not
-change with the thread count. Clusters are the connected
-components of the graph |x_i - x_j| <= R, found with a lock-free parallel union-find (hooking by ``atomic_min``,
-so each component's root is its smallest cell-sorted slot, whatever the thread timing); on Vulkan, whose compiler
-mishandles that union-find, by rounds of smallest labels, which give the same roots.
+change with the thread count. Clusters are the connected components of the graph |x_i - x_j| <= R, found with a
+lock-free parallel union-find (hooking by ``atomic_min``, so each component's root is its smallest cell-sorted
+slot, whatever the thread timing) whose pass also counts the degrees; on Vulkan, whose compiler mishandles that
+union-find, by rounds of smallest labels, which give the same roots.
 """
 
 
