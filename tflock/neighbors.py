@@ -679,12 +679,12 @@ def _pairs(m0: ti.i32, m1: ti.i32, slot: ti.types.ndarray(), bits: ti.types.ndar
            boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
            id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
            coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
-           limit: ti.i32, fill: ti.template(), edges: ti.types.ndarray()):
-    """Count (fill = False) or write (fill = True, from `offsets`, at most `limit`) the drawn neighbour pairs of
-    the selected agents m0 <= m < m1."""
+           limit: ti.i32, fill: ti.i32, edges: ti.types.ndarray()):
+    """Count (fill = 0) or write (fill = 1, from `offsets`, at most `limit`) the drawn neighbour pairs of the
+    selected agents m0 <= m < m1 (a run-time flag: one kernel to compile for both passes)."""
     for m in range(m0, m1):
         e = 0
-        if ti.static(fill):
+        if fill:
             e = offsets[m]
         s = slot[m]
         i = id_sorted[s]
@@ -698,13 +698,13 @@ def _pairs(m0: ti.i32, m1: ti.i32, slot: ti.types.ndarray(), bits: ti.types.ndar
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
                 keep = d.norm_sqr() <= radius * radius and k != s and (drawn_rank(j, bits, word_rank) < 0 or j > i)
                 if keep and (check == 0 or same_cell(coords_sorted, k, cell, boundary, dim) == 1):
-                    if ti.static(fill):
+                    if fill:
                         if e < limit:
                             for a in ti.static(range(dim)):
                                 edges[e, 0, a] = p[a]
                                 edges[e, 1, a] = p[a] + d[a]
                     e += 1
-        if ti.static(not fill):
+        if not fill:
             counts[m] = e
 
 
@@ -769,7 +769,7 @@ class SubsetDrawing:
         # memory), ~1 us, so counting all 50k drawn agents of a large run took ~55 ms a pass where ~200 agents fill
         # the default 4000 edges
         # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
-        # and from a GPU), where a Taichi ndarray's to_numpy costs a copy kernel each
+        # and from a GPU), where a Taichi ndarray would cost a copy each
         # the counting pass's unused offsets and edges are arrays of their own: on a GPU each NumPy argument is
         # copied back after the kernel, and an unwritten alias of `counts` copied back last would undo the counts
         counts = np.zeros(n_sel, dtype=np.int32)
@@ -777,7 +777,7 @@ class SubsetDrawing:
         counted, total, chunk = 0, 0, EDGE_CHUNK
         while counted < n_sel and total < max_edges:
             upto = min(n_sel, counted + chunk)
-            _pairs(counted, upto, *args, counts, unused_offsets, 0, False, unused_edges)
+            _pairs(counted, upto, *args, counts, unused_offsets, 0, 0, unused_edges)
             total = int(counts[:upto].sum())
             counted = upto
             chunk = int(1.25 * (max_edges - total) * counted / total) + EDGE_CHUNK if total else 2 * chunk
@@ -786,5 +786,5 @@ class SubsetDrawing:
         if total:
             offsets = np.zeros(counted, dtype=np.int32)
             offsets[1:] = np.cumsum(counts[: counted - 1])
-            _pairs(0, counted, *args, counts, offsets, total, True, edges)
+            _pairs(0, counted, *args, counts, offsets, total, 1, edges)
         return edges
