@@ -384,6 +384,10 @@ def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types
     row, a cell joining the open run while the agents fit in the lanes."""
     for row in range(rows):
         base = row * nc
+        if start[base] == start[base + nc]:  # an empty row (most of a sparse swarm's tiling): no run starts
+            for x in range(nc):
+                run_end[base + x] = -1
+            continue
         first_row = row - row % nc  # row 0 of this row's replica
         begin = -1  # first cell of the open run (-1: none)
         agents = 0
