@@ -446,8 +446,8 @@ def test_lane_wise_step_on_sparse_cells_equals_per_agent_step(engine, strategy):
 
 
 def _lane_wise_equals_per_agent(engine, p, state, sparse):
-    """Three steps of the lane-wise and of the per-agent step from `state`: the same rules (returned) and states
-    to rounding."""
+    """Three steps of the lane-wise and of the per-agent step from `state`: the same rules (returned) and the same
+    states, bit for bit."""
     from tflock.models.formation import sparse_cells
 
     results = []

@@ -623,8 +623,7 @@ class Formation(Model):
                   self.grid.runs() if self.lane_wise else self.grid.start,
                   self.grid.bounds, self.grid.anchor, self.grid.order,
                   self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.trig,
-                  self.f[a],
-                  self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
+                  self.f[a], self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
             self.cur = b
             self.step_index += 1
 
