@@ -14,7 +14,7 @@ import taichi as ti
 from conftest import ARCH, PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
-from tflock.models.formation import CAP, CAP_BEYOND, TURN_MARGIN, Formation, capped_turn, unit_force
+from tflock.models.formation import CAP, CAP_BEYOND, TURN_MARGIN, Formation, capped_turn, sparse_cells, unit_force
 from tflock.models.formation_params import FAILED, INSIDE, OUTSIDE, SEPARATION, STRATEGIES
 from tflock.reference import formation as rf
 from tflock.reference import wrap_pi
@@ -421,7 +421,6 @@ def test_lane_wise_step_on_sparse_cells_equals_per_agent_step(engine, strategy):
     """Where the torus's tiling has cells over 3.3 R wide (400 agents in a 1200 x 1200 torus: cells of 30), the
     lane-wise scan skips the candidates beyond reach of every lane of a block; the same states and rules as the
     per-agent step, with agents scattered alone, in pairs within R, in a crowded clump and astride the edges."""
-    from tflock.models.formation import sparse_cells
     from tflock.space import WINDOW
 
     p = params(strategy=strategy, n=400, world=1200.0, init_length=20.0, init_width=20.0, fail_prob=0.2,
@@ -448,8 +447,6 @@ def test_lane_wise_step_on_sparse_cells_equals_per_agent_step(engine, strategy):
 def _lane_wise_equals_per_agent(engine, p, state, sparse):
     """Three steps of the lane-wise and of the per-agent step from `state`: the same rules (returned) and the same
     states, bit for bit."""
-    from tflock.models.formation import sparse_cells
-
     results = []
     for lane_wise in (True, False):
         model = Formation(p, 3, engine)

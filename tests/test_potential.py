@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PRECISION
+from conftest import ARCH, PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
 from tflock.models.potential import _SPEED_RAMP, Potential, speed_colors
@@ -210,6 +210,7 @@ def test_frame_draws_the_graph(engine):
     assert frame.positions.shape == (30, 3) and 0 < len(frame.edges) <= 50
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="GPU arches keep the hashed grid")
 def test_step_matches_reference_in_both_layouts(engine):
     """The switching step on a bounded grid (the swarm's bounding box: 2D runs lane-wise on the CPU) and, with one
     agent far out, on the hashed grid it falls back to: both follow the oracle step by step."""
@@ -217,8 +218,7 @@ def test_step_matches_reference_in_both_layouts(engine):
 
     cfg = config(**CASES["switching-2d"])
     model = Potential(cfg.params, cfg.seed, engine)
-    if not model.grid.bounded:
-        pytest.skip("GPU arches keep the hashed grid")
+    assert model.grid.bounded
     state = model.state()
     for layout, straggler in ((BOUNDED, None), (OPEN, 1e5)):
         x, v = state["x"].copy(), state["v"].copy()
@@ -234,6 +234,7 @@ def test_step_matches_reference_in_both_layouts(engine):
             x, v = expected_x, expected_v
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise step is the CPU's")
 @pytest.mark.parametrize("dim", [2, 3])
 def test_lane_wise_step_equals_per_agent_step(engine, dim):
     """The CPU's lane-wise step (runs of cells, 8 agents at a time) adds the same terms in the same order as the
@@ -243,8 +244,7 @@ def test_lane_wise_step_equals_per_agent_step(engine, dim):
 
     from tflock.models.potential import _sort_velocities, _step_lanes, _step_switching
 
-    if not Potential(config().params, 3, engine).lane_wise:
-        pytest.skip("the lane-wise step is the CPU's")
+    assert Potential(config().params, 3, engine).lane_wise
     rng = np.random.default_rng(1)
     n = 500
     side = 40.0 if dim == 2 else 12.0

@@ -107,9 +107,9 @@ def sparse_cells(cell_size: float, params: FormationParams) -> bool:
     ``FAR``): where cells are so large (over 3.3 R wide) that even a run of one cell (3 x 3 of them) holds over four
     times the area within reach of its 8 agents, most candidates are out of reach of all of them (the default
     workload at 1e6: a 2000 x 2000 tiling of cells 5.2 R wide; step kernel 106-108 -> 98-99 ms on one thread). With
-    cells of side R nearly every candidate is near some lane, and the branch only costs (30 % with ~22 neighbours)."""
-    reach = max(params.radius, params.min_separation)
-    return 9 * cell_size**2 > 4 * LANES * math.pi * reach**2
+    cells of side R nearly every candidate is near some lane, and the branch only costs (30 % with ~22 neighbours).
+    Reach is R: the parameters keep the minimum separation within it."""
+    return 9 * cell_size**2 > 4 * LANES * math.pi * params.radius**2
 
 
 @ti.func
@@ -163,10 +163,9 @@ def _scan(begin, end, me, px, py, a_cos, a_sin, c_x, c_y, met, best, best_id, aw
     drops out); with ``NEAREST``, keep its nearest neighbour at most the minimum separation away (lowest id on
     ties). Element-wise: the agents `me` (ids) with positions (px, py) are the lanes of vectors, a single agent a
     vector of one. Without ``minimum_image`` the plain difference is taken (see
-    :func:`tflock.neighbors.run_wraps`). With ``FAR``, a candidate beyond reach of every lane (farther than R and
-    than the minimum separation) is passed over before the sums: it changes none of them."""
+    :func:`tflock.neighbors.run_wraps`). With ``FAR``, a candidate farther than R from every lane is passed over
+    before the sums: it changes none of them (the minimum separation lies within R, and the nearest starts there)."""
     r2, sep2, align2, world = c[R2], c[SEP2], c[ALIGN2], c[WORLD]  # locals: kept in registers in the loop
-    reach2 = ti.max(r2, sep2)
     metric = ti.static(PERIODIC if minimum_image else REFLECTING)  # REFLECTING: the plain difference
     for k in range(begin, end):
         xk = pos_sorted[0, k]
@@ -176,7 +175,7 @@ def _scan(begin, end, me, px, py, a_cos, a_sin, c_x, c_y, met, best, best_id, aw
         dy = displacement(py, pos_sorted[1, k], world, metric)
         d2 = dx * dx + dy * dy
         if ti.static(parts & FAR):
-            if not (d2 <= reach2).any():  # beyond reach of every lane: changes no sum (best starts at sep2)
+            if not (d2 <= r2).any():  # beyond reach of every lane
                 continue
         j = id_sorted[k]
         other = j != me  # ids, not slots: one i32 compare with the id the tie rule loads anyway
