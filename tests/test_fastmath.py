@@ -100,3 +100,19 @@ def test_step_keeps_cos_sin_of_the_headings(engine, boundary):
     kept = model.trig.to_numpy().copy()
     _trig(model.n_total, model.theta, model.trig)
     assert np.array_equal(kept, model.trig.to_numpy())
+
+
+def test_formation_step_keeps_cos_sin_of_the_headings(engine):
+    """The formation step keeps cos/sin of each new heading (on every arch) for the next step's gather; they equal
+    what set_state computes from the headings (its _trig kernel), bit for bit, so a resumed run continues exactly as
+    the one that saved it. A _trig on the C library's cos/sin instead of the step's polynomials fails here."""
+    from tflock.config import load_config
+    from tflock.models.formation import Formation, _trig
+
+    cfg = load_config(model="formation", overrides={"params.n": 2000, "params.noise_deg": 2.0,
+                                                    "engine.precision": PRECISION})
+    model = Formation(cfg.params, cfg.seed, engine)
+    model.advance(20)
+    kept = model.trig.to_numpy().copy()
+    _trig(cfg.params.n, model.f[model.cur], model.trig)
+    assert np.array_equal(kept, model.trig.to_numpy())
