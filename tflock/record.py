@@ -355,6 +355,11 @@ class Recorder:
             self._csv_file.flush()
 
     # ------------------------------------------------------------------ lifecycle
+    def flush(self) -> None:
+        """Wait until everything logged so far has gone through Rerun's batcher to the sinks (its encoding and
+        writing run on background threads)."""
+        self.rec.flush()
+
     def close(self) -> None:
         """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent."""
         if self._closed:
