@@ -5,8 +5,9 @@ engine settings can differ between cases and peak memory is the case's own. A ca
 config at N agents with the default density kept (the box side scales as N^(1/dim)), steps it to the wanted
 state, then times single steps. The first step (JIT compile) is reported apart. Per case: ms per step (median,
 min, max over repeats), agent-steps per second, a breakdown (neighbour-grid build, interactions = the rest of the
-step, one metrics pass, one logged frame), the mean neighbour count (the workload: a step's cost follows it),
-peak resident memory and the model's device bytes per agent.
+step, one metrics pass, one logged frame), with logging a logging run's time per step against the plain step's
+(:func:`_plain_and_logged_steps`), the mean neighbour count (the workload: a step's cost follows it), peak
+resident memory and the model's device bytes per agent.
 
 Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
 as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
