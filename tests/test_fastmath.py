@@ -11,7 +11,7 @@ import pytest
 import taichi as ti
 from conftest import ARCH, PRECISION
 
-from tflock.fastmath import atan2, sin_cos
+from tflock.fastmath import atan2, cos_sin, sin_cos
 
 F64 = PRECISION == "f64"
 REAL = np.float64 if F64 else np.float32
@@ -90,7 +90,7 @@ def test_step_keeps_cos_sin_of_the_headings(engine, boundary):
     heading after the move); they equal what set_state computes from the headings, bit for bit, so a state set
     from outside continues exactly as one the step wrote."""
     from tflock.config import load_config
-    from tflock.models.vicsek import Vicsek, _trig
+    from tflock.models.vicsek import Vicsek
 
     cfg = load_config(overrides={"params.n": 2000, "params.box": 10.0, "params.speed": 0.4,
                                  "params.boundary": boundary, "engine.precision": PRECISION})
@@ -98,21 +98,21 @@ def test_step_keeps_cos_sin_of_the_headings(engine, boundary):
     assert model.lane_wise
     model.advance(30)
     kept = model.trig.to_numpy().copy()
-    _trig(model.n_total, model.theta, model.trig)
+    cos_sin(model.n_total, model.theta, model.trig)
     assert np.array_equal(kept, model.trig.to_numpy())
 
 
 def test_formation_step_keeps_cos_sin_of_the_headings(engine):
     """The formation step keeps cos/sin of each new heading (on every arch) for the next step's gather; they equal
-    what set_state computes from the headings (its _trig kernel), bit for bit, so a resumed run continues exactly as
-    the one that saved it. A _trig on the C library's cos/sin instead of the step's polynomials fails here."""
+    what set_state computes from the headings (cos_sin), bit for bit, so a resumed run continues exactly as the one
+    that saved it. A step on the C library's cos/sin instead of the polynomials fails here."""
     from tflock.config import load_config
-    from tflock.models.formation import Formation, _trig
+    from tflock.models.formation import THETA, Formation
 
     cfg = load_config(model="formation", overrides={"params.n": 2000, "params.noise_deg": 2.0,
                                                     "engine.precision": PRECISION})
     model = Formation(cfg.params, cfg.seed, engine)
     model.advance(20)
     kept = model.trig.to_numpy().copy()
-    _trig(cfg.params.n, model.f[model.cur], model.trig)
+    cos_sin(cfg.params.n, np.ascontiguousarray(model.f[model.cur].to_numpy()[THETA]), model.trig)
     assert np.array_equal(kept, model.trig.to_numpy())

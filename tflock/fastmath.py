@@ -70,3 +70,12 @@ def atan2(y, x):
     a = ti.select(x < 0, math.pi - a, a)
     return ti.select(y < 0, -a, a)
 
+
+@ti.kernel
+def cos_sin(n: ti.i32, theta: ti.types.ndarray(), trig: ti.types.ndarray()):
+    """trig[0] = cos theta, trig[1] = sin theta for n headings, by :func:`sin_cos`. The Vicsek and formation steps
+    keep these for their next step; a state set from outside gets them here, bit for bit as a step writes them."""
+    for s in range(n):
+        sin_th, cos_th = sin_cos(theta[s])
+        trig[0, s] = cos_th
+        trig[1, s] = sin_th

@@ -48,7 +48,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
-from tflock.fastmath import sin_cos
+from tflock.fastmath import cos_sin, sin_cos
 from tflock.frame import Frame, Marker, WorldSpec
 from tflock.guard import NO_AGENT, Guarded, first_non_finite
 from tflock.metrics import BLOCK, n_blocks
@@ -417,17 +417,6 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
 
 
 @ti.kernel
-def _trig(n: ti.i32, f: ti.types.ndarray(), trig: ti.types.ndarray()):
-    """cos and sin of the headings of a state set from outside, as the step computes them for the next one (a
-    step's gather of the headings then copies them: 16.7 -> 2.9 ms at 1e6 on one thread, the two libm calls
-    an agent were most of it), with the step's polynomials."""
-    for e in range(n):
-        sin_th, cos_th = sin_cos(f[THETA, e])
-        trig[0, e] = cos_th
-        trig[1, e] = sin_th
-
-
-@ti.kernel
 def _quantifier_blocks(n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: float, pos: ti.types.ndarray(),
                        f: ti.types.ndarray(), rule: ti.types.ndarray(), partial: ti.types.ndarray()):
     """Per block of agents: sum cos Theta, sin Theta, distance to the VA, inside, aligned, speed, separation, and
@@ -508,7 +497,7 @@ class Formation(Model):
         self.ids = [ti.ndarray(ti.i32, n) for _ in range(2)]
         self.cur = 0
         self.payload = ti.ndarray(ftype, (2, n))
-        self.trig = ti.ndarray(ftype, (2, n))  # cos and sin of each heading, in the state's order (see _trig)
+        self.trig = ti.ndarray(ftype, (2, n))  # cos and sin of each heading, in the state's order (fastmath.cos_sin)
         self.rule = ti.ndarray(ti.i32, n)  # what drove each agent at the last step (in the state's order, as ids)
         self.where = ti.ndarray(ti.i32, n)
         self.bad = ti.ndarray(ti.i32, 1)
@@ -561,9 +550,10 @@ class Formation(Model):
         k = self.cur
         self.pos[k].from_numpy(np.ascontiguousarray(x.T, dtype=real))
         floats = np.stack([np.asarray(state["theta"], dtype=np.float64), speed, ramp[0], ramp[1]])
-        self.f[k].from_numpy(np.ascontiguousarray(floats, dtype=real))
+        floats = np.ascontiguousarray(floats, dtype=real)
+        self.f[k].from_numpy(floats)
+        cos_sin(n, floats[THETA], self.trig)  # the headings' cos and sin, as the step keeps them
         self.i[k].from_numpy(np.stack([inside, ramp[2]]).astype(np.int32))
-        _trig(n, self.f[k], self.trig)
         self.ids[k].from_numpy(np.arange(n, dtype=np.int32))
         self.rule.from_numpy(np.where(inside == 1, INSIDE, OUTSIDE).astype(np.int32))
         self.step_index = step

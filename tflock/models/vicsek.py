@@ -32,7 +32,7 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
-from tflock.fastmath import atan2, sin_cos
+from tflock.fastmath import atan2, cos_sin, sin_cos
 from tflock.frame import Frame, WorldSpec, angle_colors
 from tflock.metrics import (
     EXACT_PAIRS_MAX,
@@ -218,16 +218,6 @@ def _headings(n: ti.i32, order: ti.types.ndarray(), theta: ti.types.ndarray(), t
         payload[2, s] = theta[e]
 
 
-@ti.kernel
-def _trig(n: ti.i32, theta: ti.types.ndarray(), trig: ti.types.ndarray()):
-    """trig = (cos, sin) of theta, by the polynomials the step uses (so a state set from outside matches one the
-    step wrote, bit for bit)."""
-    for s in range(n):
-        sin_th, cos_th = sin_cos(theta[s])
-        trig[0, s] = cos_th
-        trig[1, s] = sin_th
-
-
 @ti.func
 def _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box, pos_sorted: ti.template(),
                 payload: ti.template(), rule: ti.template(), minimum_image: ti.template()):
@@ -331,7 +321,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         qy, flip_y = reflect(qy, box)
         new = ti.select(flip_x == 1, math.pi - new, new)
         new = wrap_two_pi(ti.select(flip_y == 1, -new, new))
-        sin_new, cos_new = sin_cos(new)  # trig holds sin_cos(theta) exactly, as _trig computes it
+        sin_new, cos_new = sin_cos(new)  # trig holds sin_cos(theta) exactly, as cos_sin computes it
     change = ti.abs(wrap_pi(new - th))
     for k in ti.static(range(width)):
         pos[0, i0 + k] = qx[k]
@@ -488,7 +478,7 @@ class Vicsek(GridModel):
         self.pos.from_numpy(x)
         self.theta.from_numpy(theta)
         if self.lane_wise:
-            _trig(self.n_total, self.theta, self.trig)
+            cos_sin(self.n_total, self.theta, self.trig)
         self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
         self.turn.fill(0)
         self.updated.fill(0)
