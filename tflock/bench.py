@@ -237,6 +237,14 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
     return peers
 
 
+def _written(sim: Any) -> None:
+    """Wait for the kernels and for Rerun's background threads to have written what was logged."""
+    import taichi as ti
+
+    ti.sync()
+    sim.recorder.flush()
+
+
 def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float]:
     """The plain steps' ms (grid build included) and a logging run's ms per step (a frame every step: the step on
     the grid its last frame built, the non-finite guard, this step's grid and frame, Rerun), taken in turns as
@@ -256,7 +264,7 @@ def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float]
         model.restore(*here)
         model.build_neighbours()  # as the frame of the step before would have
         ti.sync()
-        runs.append(_timed(lambda k=k: sim.step(k), lambda: (ti.sync(), sim.recorder.flush())) / k)
+        runs.append(_timed(lambda k=k: sim.step(k), lambda: _written(sim)) / k)
     return plain, statistics.median(runs)
 
 
@@ -300,8 +308,7 @@ def run_case(case: BenchCase) -> BenchResult:
         result.metrics_ms = _timed(measure, ti.sync)
         result.mean_neighbors = _mean_neighbours(model, metrics, result.box)
         if case.log:
-            result.logging_ms = _timed(lambda: (sim._guard(), sim._observe()),
-                                       lambda: (ti.sync(), sim.recorder.flush()))  # Rerun's background work too
+            result.logging_ms = _timed(lambda: (sim._guard(), sim._observe()), lambda: _written(sim))
         result.device_bytes_per_agent = device_bytes(model) / case.n
         if case.peers:
             result.peers = _time_peers(model, result.ms_median, result.mean_neighbors, sim.engine.threads)
