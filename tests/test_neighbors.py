@@ -323,3 +323,22 @@ def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
     unit = frame.directions / np.linalg.norm(frame.directions, axis=1, keepdims=True)
     np.testing.assert_allclose(unit, heading / np.linalg.norm(heading, axis=1, keepdims=True), atol=1e-5)
     assert len(frame.edges) == 500
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting"])
+def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, boundary):
+    """A Vicsek step told by draw_next that its state will be drawn writes the drawn agents' rows itself; the frame
+    made from them equals, bit for bit, the frame its own pass over the grid draws from the same state."""
+    sim = make_sim(model="vicsek", params={"n": 3000, "box": 30.0, "boundary": boundary, "noise": 0.5}, steps=20)
+    model = sim.model
+    sim.step(4)
+    selected = np.arange(2, 3000, 7)
+    for _ in range(3):
+        model.draw_next(selected)
+        model.advance(1)
+        announced = model.frame(selected, max_edges=300)
+        assert model._drawn is not None or not model.lane_wise  # the step wrote the rows (CPU lane-wise step)
+        model.invalidate()  # forgets them: the frame is drawn again by its own pass (on the same grid, rebuilt)
+        drawn = model.frame(selected, max_edges=300)
+        for name in ("positions", "directions", "colors", "edges"):
+            np.testing.assert_array_equal(getattr(announced, name), getattr(drawn, name), err_msg=name)

@@ -198,6 +198,8 @@ class Simulation:
         """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.
         Raises :class:`NumericalFaultError` when the state becomes non-finite."""
         for _ in range(steps):
+            if self._frame_due(self.model.step_index + 1):
+                self.model.draw_next(self._selected)
             self.model.advance(1)
             t = self.model.step_index
             last = t == self.config.steps

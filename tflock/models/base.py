@@ -103,12 +103,17 @@ class Model(ABC):
     def invalidate(self) -> None:  # noqa: B027 (an optional hook: models without derived data need nothing)
         """Forget data derived from the state (e.g. a neighbour grid) after the state was replaced."""
 
+    def draw_next(self, selected: np.ndarray) -> None:  # noqa: B027 (an optional hook, as invalidate)
+        """Say that the state after the next step will be drawn, for the `selected` agents (sorted ids): a model
+        may gather what :meth:`frame` needs during that step instead of in passes of its own."""
+
 
 class GridModel(Model):
     """A model whose positions ``pos`` and agent ids ``ids`` feed one cell grid ``grid``, built lazily once per
     step (``_grid_step`` is the step whose positions the grid holds)."""
 
     _grid_step = -1
+    _drawing: SubsetDrawing | None = None
 
     def _ensure_grid(self) -> None:
         if self._grid_step != self.step_index:
@@ -126,6 +131,9 @@ class GridModel(Model):
     def drawing(self, selected: np.ndarray) -> SubsetDrawing:
         """The drawn subset on the current grid (its index arrays are uploaded once per subset)."""
         self._ensure_grid()
-        if getattr(self, "_drawing", None) is None or not np.array_equal(self._drawing.selected_ids, selected):
+        return self._subset(selected)
+
+    def _subset(self, selected: np.ndarray) -> SubsetDrawing:
+        if self._drawing is None or not np.array_equal(self._drawing.selected_ids, selected):
             self._drawing = SubsetDrawing(self.grid, selected)
         return self._drawing

@@ -47,6 +47,7 @@ from tflock.models.base import GridModel
 from tflock.neighbors import (
     LANES,
     CellGrid,
+    SubsetDrawing,
     drawn_rank,
     lanes,
     load_cell,
@@ -283,8 +284,10 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
                   rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
                   id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
                   pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
-                  turn: ti.template(), updated: ti.template()):
-    """Steps 2-5 of the synchronous step for agents at slots i0 .. i0 + width - 1, from the neighbour sums."""
+                  turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
+                  drawn: ti.template()):
+    """Steps 2-5 of the synchronous step for agents at slots i0 .. i0 + width - 1, from the neighbour sums; with
+    `draw`, the drawn agents' frame rows at their ranks (see :func:`drawn_rank` and :func:`_drawn_rows`)."""
     i = ti.Vector([id_sorted[i0 + k] for k in ti.static(range(width))])
     th = ti.Vector([payload[2, i0 + k] for k in ti.static(range(width))])
     acc_a = ti.Vector([sums[0, i0 + k] for k in ti.static(range(width))])
@@ -332,6 +335,16 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         ids[i0 + k] = i[k]
         turn[i0 + k] = change[k]
         updated[i0 + k] = ti.select(update[k], 1, 0)
+    if draw:
+        for k in ti.static(range(width)):
+            r = drawn_rank(i[k], bits, word_rank)
+            if r >= 0:
+                drawn[0, r, 0] = qx[k]
+                drawn[0, r, 1] = qy[k]
+                drawn[1, r, 0] = cos_new[k]
+                drawn[1, r, 1] = sin_new[k]
+                drawn[2, r, 0] = new[k]
+                drawn[2, r, 1] = ti.select(update[k], 1.0, 0.0)
 
 
 @ti.kernel
@@ -340,14 +353,18 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
             batched: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
             payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
             theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
-            updated: ti.types.ndarray()):
-    """New headings and positions, written at each agent's slot (the arrangement becomes this step's cell order)."""
+            updated: ti.types.ndarray(), draw: ti.i32, bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
+            drawn: ti.types.ndarray()):
+    """New headings and positions, written at each agent's slot (the arrangement becomes this step's cell order);
+    with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // LANES):
         _update_lanes(b * LANES, LANES, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary,
-                      leader, batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated)
+                      leader, batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
+                      draw, bits, word_rank, drawn)
     for s in range(n // LANES * LANES, n):
         _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                      batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated)
+                      batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw, bits,
+                      word_rank, drawn)
 
 
 @ti.kernel
@@ -366,19 +383,25 @@ def _frame_rows(m: ti.i32, selected: ti.types.ndarray(), slot_of: ti.types.ndarr
 @ti.kernel
 def _drawn_rows(n: ti.i32, id_sorted: ti.types.ndarray(), order: ti.types.ndarray(), bits: ti.types.ndarray(),
                 word_rank: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), theta: ti.types.ndarray(),
-                updated: ti.types.ndarray(), out: ti.types.ndarray(), slot: ti.types.ndarray()):
-    """Rows x, y, theta, updated of the drawn agents and their grid slots, by one pass over the grid's agents:
-    sequential reads (the state is kept in the previous build's cell order, nearly the grid's), where looking
-    each drawn agent up by id missed the cache every time (1e6 agents, 50k drawn: 6 -> 3.5 ms), and the slots
-    the drawn edges need come with it (filling ``slot_of`` for all agents instead took ~2.5 ms)."""
+                updated: ti.types.ndarray(), drawn: ti.types.ndarray(), slot: ti.types.ndarray()):
+    """Frame rows of the drawn agents (row r: the agent of rank r, see :func:`drawn_rank`): ``drawn[0]`` positions,
+    ``drawn[1]`` heading vectors (cos, sin), ``drawn[2]`` (theta, 1 if updated), and their grid slots, by one pass
+    over the grid's agents: sequential reads (the state is kept in the previous build's cell order, nearly the
+    grid's), where looking each drawn agent up by id missed the cache every time (1e6 agents, 50k drawn: 6 -> 3.5
+    ms). The lane-wise step writes these rows itself for a frame ``draw_next`` announced (this pass's 2.5-3.3 ms at
+    1e6 on 2 threads, against no measurable time in the step's ``_update``)."""
     for s in range(n):
         r = drawn_rank(id_sorted[s], bits, word_rank)
         if r >= 0:
             e = order[s]
-            out[r, 0] = pos_sorted[0, s]
-            out[r, 1] = pos_sorted[1, s]
-            out[r, 2] = theta[e]
-            out[r, 3] = updated[e]
+            th = theta[e]
+            sin_th, cos_th = sin_cos(th)
+            drawn[0, r, 0] = pos_sorted[0, s]
+            drawn[0, r, 1] = pos_sorted[1, s]
+            drawn[1, r, 0] = cos_th
+            drawn[1, r, 1] = sin_th
+            drawn[2, r, 0] = th
+            drawn[2, r, 1] = ti.select(updated[e] != 0, 1.0, 0.0)
             slot[r] = s
 
 
@@ -463,6 +486,12 @@ class Vicsek(GridModel):
         self.trig = ti.ndarray(ftype, (2, m))  # cos and sin of theta, element by element
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
+        # the frame draw_next announced: (its step, its drawing), a tuple (checkpoint() would keep a plain number);
+        # the rows the lane-wise step wrote for it: (step, drawing, rows); the step's drawing arguments when it
+        # writes none (bits, word_rank, rows; unused)
+        self._announced: tuple[int, SubsetDrawing] | None = None
+        self._drawn: tuple[int, SubsetDrawing, np.ndarray] | None = None
+        self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1), np.zeros((3, 1, 2), dtype=real))
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
         draws = [initial_state(params, seed + r) for r in range(replicas)]
@@ -495,7 +524,15 @@ class Vicsek(GridModel):
             self.hist_pos.from_numpy(np.ascontiguousarray(hist_x, dtype=real))
             self.hist_theta.from_numpy(np.ascontiguousarray(hist_theta, dtype=real))
         self.step_index = step
-        self._grid_step = -1
+        self.invalidate()
+
+    def draw_next(self, selected: np.ndarray) -> None:
+        """The lane-wise step writes the frame rows of the state it makes (no pass of the frame's own)."""
+        self._announced = (self.step_index + 1, self._subset(selected))
+
+    def invalidate(self) -> None:
+        super().invalidate()
+        self._drawn = None
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -537,9 +574,18 @@ class Vicsek(GridModel):
         _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(),
                         grid.pos_sorted, self.payload, self.sums)
+        drawing = None  # the drawing of a frame announced for the state this step makes: its rows come with it
+        if self._announced is not None and self._announced[0] == self.step_index + 1:
+            drawing = self._announced[1]
+        if drawing is not None and len(drawing.selected_ids):
+            drawn = np.empty((3, len(drawing.selected_ids), 2), dtype=grid.real)
+            draw = (1, drawing.bits, drawing.word_rank, drawn)
+        else:
+            drawn, draw = None, (0, *self._no_draw)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
                 inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, grid.id_sorted, grid.pos_sorted,
-                self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated)
+                self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated, *draw)
+        self._drawn = None if drawn is None else (self.step_index + 1, drawing, drawn)
 
     def metrics(self) -> dict[str, float]:
         if self.replicas > 1:
@@ -584,15 +630,17 @@ class Vicsek(GridModel):
         p = self.params
         drawing = self.drawing(selected)
         grid = self.grid
-        rows = np.zeros((len(selected), 4), dtype=grid.real)  # written in place on the CPU: no copy kernel
-        if len(selected):
-            _drawn_rows(self.n_total, grid.id_sorted, grid.order, drawing.bits, drawing.word_rank, grid.pos_sorted,
-                        self.theta, self.updated, rows, drawing.slot)
-            drawing.located()
-        directions = np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32)
-        colors = angle_colors(rows[:, 2])  # from the headings themselves: no atan2 of the directions
+        if self._drawn is not None and self._drawn[:2] == (self.step_index, drawing):
+            drawn = self._drawn[2]  # written by the step (draw_next)
+        else:  # written in place on the CPU: no copy kernel
+            drawn = np.zeros((3, len(selected), 2), dtype=grid.real)
+            if len(selected):
+                _drawn_rows(self.n_total, grid.id_sorted, grid.order, drawing.bits, drawing.word_rank,
+                            grid.pos_sorted, self.theta, self.updated, drawn, drawing.slot)
+                drawing.located()
+        colors = angle_colors(drawn[2, :, 0])  # from the headings themselves: no atan2 of the directions
         if self.asynchronous:
-            dim = np.where(rows[:, 3] > 0, 1.0, 0.3)[:, None]
+            dim = np.where(drawn[2, :, 1] > 0, 1.0, 0.3)[:, None]
             colors = (colors * dim).astype(np.uint8)
         leader = leader_direction = None
         if p.leader.enabled:
@@ -600,8 +648,8 @@ class Vicsek(GridModel):
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
         return Frame(
-            positions=rows[:, :2].astype(np.float32),
-            directions=directions,
+            positions=np.asarray(drawn[0], dtype=np.float32),
+            directions=np.asarray(drawn[1], dtype=np.float32),
             arrow_length=0.5 * p.radius,
             colors=colors,
             edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
