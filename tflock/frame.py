@@ -77,15 +77,16 @@ def _wheel() -> np.ndarray:
     return np.rint((1.0 - np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)) * 255.0).astype(np.uint8)
 
 
-_PALETTE = _wheel()
+#: the wheel's RGBA bytes, each hue one 4-byte element: a frame's colours are gathered 4 bytes at a time
+_PALETTE = np.concatenate([_wheel(), np.full((_WHEEL, 1), 255, np.uint8)], axis=1).view(np.uint32).ravel()
 
 
 def angle_colors(angles: np.ndarray) -> np.ndarray:
-    """Colour each planar angle (radians) on the HSV wheel (full saturation and value): an (M, 3) uint8 array;
-    angle 0 is red, 2 pi / 3 green, 4 pi / 3 blue. A table of 1536 hues (one step per colour level), so a frame of
-    50k agents is coloured in well under a millisecond."""
+    """Colour each planar angle (radians) on the HSV wheel (full saturation and value): an (M, 3) uint8 array (a
+    view of M RGBA rows); angle 0 is red, 2 pi / 3 green, 4 pi / 3 blue. A table of 1536 hues (one step per colour
+    level), so a frame of 50k agents is coloured in about 0.2 ms."""
     steps = np.rint(np.asarray(angles, dtype=np.float32) * np.float32(_WHEEL / (2 * math.pi))).astype(np.int64)
-    return _PALETTE[steps % _WHEEL]
+    return _PALETTE.take(steps % _WHEEL).view(np.uint8).reshape(-1, 4)[:, :3]
 
 
 def heading_colors(directions: np.ndarray) -> np.ndarray:
