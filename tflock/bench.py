@@ -43,6 +43,7 @@ NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 #: expected time of the cKDTree + sparse-matrix peer per agent-neighbour pair (0.2-0.35 us measured here at 1e6)
 CKDTREE_S_PER_PAIR = 4e-7
 LOG_RUN = 5  # logging runs of this many steps alternate with as many plain steps (see _plain_and_logged_steps)
+LOG_TURNS = 8  # at least this many such turns (pairs of runs) per logging case
 METRICS_NEVER = 10**9  # log.metrics_every of a case: steps logged for timing take no metrics pass (timed apart)
 
 
@@ -83,7 +84,8 @@ class BenchResult:
     metrics_ms: float = 0.0
     logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
     logged_ms_median: float | None = None  # a logging run's ms per step (a frame every step), the same steps
-    logging_overhead: float | None = None  # logged_ms_median / ms_median - 1
+    # median over turns of (a logging run's ms per step / its turn's plain ms per step) - 1
+    logging_overhead: float | None = None
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
     # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
@@ -112,10 +114,20 @@ def case_config(case: BenchCase) -> dict[str, Any]:
     scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
     lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
     # steps: one more than the timed steps reach, so that none is the run's last (which takes a metrics pass)
-    return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 2,
+    return {"model": case.model, "seed": 1, "steps": case.develop_steps + _timed_steps(case) + 2,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
             "params": {**_override_tree(case.overrides)["params"], "n": case.n, **lengths},
             "log": {"max_agents": case.log_agents, "every": 1, "metrics_every": METRICS_NEVER}}
+
+
+def _logging_turns(repeats: int) -> int:
+    """Turns of plain steps and a logging run (see :func:`_plain_and_logged_steps`) for `repeats` plain steps."""
+    return max(math.ceil(repeats / LOG_RUN), LOG_TURNS)
+
+
+def _timed_steps(case: BenchCase) -> int:
+    """Steps the timing of a case advances its model by: each turn's logging run, or the repeats."""
+    return LOG_RUN * _logging_turns(case.repeats) if case.log else case.repeats
 
 
 def _override_tree(overrides: Iterable[str]) -> dict[str, Any]:
@@ -245,27 +257,32 @@ def _written(sim: Any) -> None:
     sim.recorder.flush()
 
 
-def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float]:
-    """The plain steps' ms (grid build included) and a logging run's ms per step (a frame every step: the step on
-    the grid its last frame built, the non-finite guard, this step's grid and frame, Rerun), taken in turns as
-    runs of up to ``LOG_RUN`` steps from the same state on a drifting machine. A logging run is timed whole,
-    until Rerun's background threads have encoded and written its last frame; the median over its runs is
-    returned. Timing single logged steps between plain ones hid part of the cost: the background work of one
-    frame then overlapped the next plain step, which looked slower and the logging cheaper than in a run (at 1e6:
-    plain 53-64 ms against 42-50 in a row, +9-16 % against +30-60 % for a logging run)."""
+def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float, float]:
+    """The plain steps' ms (grid build included), a logging run's ms per step (a frame every step: the step on the
+    grid its last frame built, the non-finite guard, this step's grid and frame, Rerun) and the logging overhead.
+
+    Turns of ``LOG_RUN`` plain steps and a logging run of as many steps from the same state (enough turns for
+    `repeats` plain steps, at least ``LOG_TURNS``). A logging run is timed whole, until Rerun's background threads
+    have encoded and written its last frame; the runs' median is returned. The overhead is the median over turns of
+    a logging run's time against its own turn's plain steps, which cancels the drift of a shared machine between
+    turns (at 1e6 here plain steps drift between 30 and 50 ms within minutes). Timing single logged steps between
+    plain ones hid part of the cost: the background work of one frame then overlapped the next plain step, which
+    looked slower and the logging cheaper than in a run (at 1e6: plain 53-64 ms against 42-50 in a row, +9-16 %
+    against +30-60 % for a logging run)."""
     import taichi as ti
 
-    model, plain, runs = sim.model, [], []
-    while len(plain) < repeats:
-        k = min(LOG_RUN, repeats - len(plain))
+    model, plain, runs, ratios = sim.model, [], [], []
+    for _ in range(_logging_turns(repeats)):
         here = (model.checkpoint(), model.step_index)
         model.invalidate()
-        plain += [_timed(lambda: model.advance(1), ti.sync) for _ in range(k)]
+        turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(LOG_RUN)]
         model.restore(*here)
         model.build_neighbours()  # as the frame of the step before would have
         ti.sync()
-        runs.append(_timed(lambda k=k: sim.step(k), lambda: _written(sim)) / k)
-    return plain, statistics.median(runs)
+        runs.append(_timed(lambda: sim.step(LOG_RUN), lambda: _written(sim)) / LOG_RUN)
+        ratios.append(runs[-1] / statistics.fmean(turn))
+        plain += turn
+    return plain, statistics.median(runs), statistics.median(ratios) - 1.0
 
 
 def run_case(case: BenchCase) -> BenchResult:
@@ -288,14 +305,12 @@ def run_case(case: BenchCase) -> BenchResult:
             model.advance(case.develop_steps)
             ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
         if case.log:
-            steps, result.logged_ms_median = _plain_and_logged_steps(sim, case.repeats)
+            steps, result.logged_ms_median, result.logging_overhead = _plain_and_logged_steps(sim, case.repeats)
         else:
             steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)
-        if result.logged_ms_median is not None:
-            result.logging_overhead = result.logged_ms_median / result.ms_median - 1.0
         if hasattr(model, "build_neighbours"):
             builds = [_timed(model.build_neighbours, ti.sync) for _ in range(max(3, case.repeats // 2))]
             result.build_ms = statistics.median(builds)
