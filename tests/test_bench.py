@@ -116,8 +116,8 @@ def test_numba_peer_is_the_reference_vicsek_step(n, box):
 
 
 def test_logging_overhead_pairs_turns(monkeypatch):
-    """Turns of plain steps and a logging run from the same state: the overhead compares each logging run with its
-    own turn's plain steps (here the machine drifts between turns, plain steps of 4 to 16 ms, and a logging run
+    """Turns of plain steps and a logging run, all from the case's state: the overhead compares each logging run with
+    its own turn's plain steps (here the machine drifts between turns, plain steps of 4 to 16 ms, and a logging run
     takes 1.5 times its turn's plain step, 2.5 times in one turn hit by a slow spell)."""
     import time
 
@@ -126,20 +126,19 @@ def test_logging_overhead_pairs_turns(monkeypatch):
     from tflock import bench
 
     pace = iter([(4, 1.5), (16, 1.5), (4, 1.5), (16, 2.5), (8, 1.5), (16, 1.5), (4, 1.5), (8, 1.5)])
-    state = {"ms": 0.0, "factor": 1.0}  # this turn's ms per plain step, and a logged step's factor
+    state = {"ms": 0.0, "factor": 1.0, "restores": 0, "starts": set()}  # this turn's ms per plain step, and so on
 
     class Model:
-        step_index = 0
+        step_index = 7
 
         def checkpoint(self):
-            state["ms"], state["factor"] = next(pace)
-            return {}
+            return {"start": self.step_index}
 
         def restore(self, arrays, step):
-            pass
-
-        def invalidate(self):
-            pass
+            state["starts"].add(step)
+            if state["restores"] % 2 == 0:  # a new turn
+                state["ms"], state["factor"] = next(pace)
+            state["restores"] += 1
 
         def build_neighbours(self):
             pass
@@ -155,7 +154,7 @@ def test_logging_overhead_pairs_turns(monkeypatch):
 
     monkeypatch.setattr(bench, "_written", lambda sim: None)
     monkeypatch.setattr(ti, "sync", lambda: None)
-    plain, logged, overhead = bench._plain_and_logged_steps(Sim(), repeats=10)
-    assert len(plain) == bench.LOG_RUN * bench.LOG_TURNS == 40
+    plain, logged, overhead = bench._plain_and_logged_steps(Sim(), repeats=3)
+    assert len(plain) == 3 * bench.LOG_TURNS == 24 and state["starts"] == {7}  # every turn from the case's state
     assert overhead == pytest.approx(0.5, abs=0.05)
     assert logged == pytest.approx(1.5 * 8, rel=0.1)  # the logging runs' median: 6 6 6 12 12 24 24 40 ms a step

@@ -42,8 +42,7 @@ PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less
 NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 #: expected time of the cKDTree + sparse-matrix peer per agent-neighbour pair (0.2-0.35 us measured here at 1e6)
 CKDTREE_S_PER_PAIR = 4e-7
-LOG_RUN = 5  # logging runs of this many steps alternate with as many plain steps (see _plain_and_logged_steps)
-LOG_TURNS = 8  # at least this many such turns (pairs of runs) per logging case
+LOG_TURNS = 8  # turns of plain steps and a logging run per logging case (see _plain_and_logged_steps)
 METRICS_NEVER = 10**9  # log.metrics_every of a case: steps logged for timing take no metrics pass (timed apart)
 
 
@@ -114,20 +113,10 @@ def case_config(case: BenchCase) -> dict[str, Any]:
     scale = (case.n / params.n) ** (1.0 / getattr(params, "dim", 2))
     lengths = {k: float(getattr(params, k)) * scale for k in LENGTHS if hasattr(params, k)}
     # steps: one more than the timed steps reach, so that none is the run's last (which takes a metrics pass)
-    return {"model": case.model, "seed": 1, "steps": case.develop_steps + _timed_steps(case) + 2,
+    return {"model": case.model, "seed": 1, "steps": case.develop_steps + case.repeats + 2,
             "engine": {"arch": case.arch, "threads": case.threads, "precision": case.precision},
             "params": {**_override_tree(case.overrides)["params"], "n": case.n, **lengths},
             "log": {"max_agents": case.log_agents, "every": 1, "metrics_every": METRICS_NEVER}}
-
-
-def _logging_turns(repeats: int) -> int:
-    """Turns of plain steps and a logging run (see :func:`_plain_and_logged_steps`) for `repeats` plain steps."""
-    return max(math.ceil(repeats / LOG_RUN), LOG_TURNS)
-
-
-def _timed_steps(case: BenchCase) -> int:
-    """Steps the timing of a case advances its model by: each turn's logging run, or the repeats."""
-    return LOG_RUN * _logging_turns(case.repeats) if case.log else case.repeats
 
 
 def _override_tree(overrides: Iterable[str]) -> dict[str, Any]:
@@ -261,25 +250,25 @@ def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float,
     """The plain steps' ms (grid build included), a logging run's ms per step (a frame every step: the step on the
     grid its last frame built, the non-finite guard, this step's grid and frame, Rerun) and the logging overhead.
 
-    Turns of ``LOG_RUN`` plain steps and a logging run of as many steps from the same state (enough turns for
-    `repeats` plain steps, at least ``LOG_TURNS``). A logging run is timed whole, until Rerun's background threads
-    have encoded and written its last frame; the runs' median is returned. The overhead is the median over turns of
-    a logging run's time against its own turn's plain steps, which cancels the drift of a shared machine between
-    turns (at 1e6 here plain steps drift between 30 and 50 ms within minutes). Timing single logged steps between
-    plain ones hid part of the cost: the background work of one frame then overlapped the next plain step, which
-    looked slower and the logging cheaper than in a run (at 1e6: plain 53-64 ms against 42-50 in a row, +9-16 %
-    against +30-60 % for a logging run)."""
+    ``LOG_TURNS`` turns, each `repeats` plain steps and a logging run of as many steps, all from the case's state
+    (every turn times the same steps: the workload stays the state's). A logging run is timed whole, until Rerun's
+    background threads have encoded and written its last frame; the runs' median is returned. The overhead is the
+    median over turns of a logging run's time against its own turn's plain steps, which cancels the drift of a
+    shared machine between turns (at 1e6 here plain steps drift between 30 and 50 ms within minutes). Timing single
+    logged steps between plain ones hid part of the cost: the background work of one frame then overlapped the
+    next plain step, which looked slower and the logging cheaper than in a run (at 1e6: plain 53-64 ms against
+    42-50 in a row, +9-16 % against +30-60 % for a logging run)."""
     import taichi as ti
 
     model, plain, runs, ratios = sim.model, [], [], []
-    for _ in range(_logging_turns(repeats)):
-        here = (model.checkpoint(), model.step_index)
-        model.invalidate()
-        turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(LOG_RUN)]
-        model.restore(*here)
+    start = (model.checkpoint(), model.step_index)
+    for _ in range(LOG_TURNS):
+        model.restore(*start)
+        turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(repeats)]
+        model.restore(*start)
         model.build_neighbours()  # as the frame of the step before would have
         ti.sync()
-        runs.append(_timed(lambda: sim.step(LOG_RUN), lambda: _written(sim)) / LOG_RUN)
+        runs.append(_timed(lambda: sim.step(repeats), lambda: _written(sim)) / repeats)
         ratios.append(runs[-1] / statistics.fmean(turn))
         plain += turn
     return plain, statistics.median(runs), statistics.median(ratios) - 1.0
