@@ -77,16 +77,27 @@ def _wheel() -> np.ndarray:
     return np.rint((1.0 - np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0)) * 255.0).astype(np.uint8)
 
 
-#: the wheel's RGBA bytes, each hue one 4-byte element: a frame's colours are gathered 4 bytes at a time
-_PALETTE = np.concatenate([_wheel(), np.full((_WHEEL, 1), 255, np.uint8)], axis=1).view(np.uint32).ravel()
+def color_table(rgb: np.ndarray) -> np.ndarray:
+    """(K, 3) uint8 colours as K opaque RGBA elements of 4 bytes each, for :func:`look_up`."""
+    rgba = np.concatenate([rgb, np.full((len(rgb), 1), 255, np.uint8)], axis=1)
+    return np.ascontiguousarray(rgba).view(np.uint32).ravel()
+
+
+def look_up(table: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The colours ``table[index]`` of a :func:`color_table` as an (M, 3) uint8 array (a view of M RGBA rows): one
+    4-byte gather per colour, where indexing (K, 3) rows gathers them byte by byte (50k colours 0.4 -> 0.1 ms)."""
+    return table.take(index).view(np.uint8).reshape(-1, 4)[:, :3]
+
+
+_PALETTE = color_table(_wheel())
 
 
 def angle_colors(angles: np.ndarray) -> np.ndarray:
-    """Colour each planar angle (radians) on the HSV wheel (full saturation and value): an (M, 3) uint8 array (a
-    view of M RGBA rows); angle 0 is red, 2 pi / 3 green, 4 pi / 3 blue. A table of 1536 hues (one step per colour
-    level), so a frame of 50k agents is coloured in about 0.2 ms."""
+    """Colour each planar angle (radians) on the HSV wheel (full saturation and value): an (M, 3) uint8 array;
+    angle 0 is red, 2 pi / 3 green, 4 pi / 3 blue. A table of 1536 hues (one step per colour level), so a frame of
+    50k agents is coloured in about 0.2 ms."""
     steps = np.rint(np.asarray(angles, dtype=np.float32) * np.float32(_WHEEL / (2 * math.pi))).astype(np.int64)
-    return _PALETTE.take(steps % _WHEEL).view(np.uint8).reshape(-1, 4)[:, :3]
+    return look_up(_PALETTE, steps % _WHEEL)
 
 
 def heading_colors(directions: np.ndarray) -> np.ndarray:
