@@ -8,7 +8,7 @@ from conftest import ARCH, PRECISION
 from tflock import reference as ref
 from tflock.config import load_config
 from tflock.models.vicsek import Vicsek
-from tflock.neighbors import CellGrid, run_at, window_run_wraps
+from tflock.neighbors import CellGrid, SubsetDrawing, run_at, window_run_wraps
 from tflock.space import WINDOW
 
 
@@ -110,6 +110,34 @@ def test_edges_capped_are_the_first_of_all_edges(engine, max_edges):
     everything = model.frame(selected, max_edges=10**9).edges
     assert len(everything) > 7000  # the caps below end inside the second and a later chunk
     np.testing.assert_array_equal(model.frame(selected, max_edges=max_edges).edges, everything[:max_edges])
+
+
+@pytest.mark.parametrize("boundary,bounded", [("periodic", False), ("periodic", True), ("reflecting", False),
+                                              ("open", False), ("open", True)])
+def test_edges_from_positions_find_the_agents_in_their_cells(engine, boundary, bounded):
+    """Given the drawn agents' positions, the drawing finds the agents whose edges it draws in their own cells (no
+    pass over all agents) and draws the same edges; positions the grid was not built from fall back to the pass."""
+    rng = np.random.default_rng(4)
+    n, box = 3000, 30.0
+    x = rng.random((2, n)) * (box / 3 if bounded else box)  # a bounded grid's swarm fills part of its world
+    grid = CellGrid(n, 2, boundary, box, 1.0, engine.real, bounded=bounded)
+    ftype = ti.f32 if engine.real == np.float32 else ti.f64
+    pos = ti.ndarray(ftype, (2, n))
+    pos.from_numpy(np.ascontiguousarray(x, dtype=engine.real))
+    ids = ti.ndarray(ti.i32, n)
+    ids.from_numpy(rng.permutation(n).astype(np.int32))
+    grid.build(pos, ids)
+    agent_x = np.empty((n, 2), dtype=engine.real)
+    agent_x[ids.to_numpy()] = pos.to_numpy().T
+    selected = np.sort(rng.choice(n, 900, replace=False))
+    expected = SubsetDrawing(grid, selected).edges(box, 1.0, 2000)
+    drawing = SubsetDrawing(grid, selected)
+    np.testing.assert_array_equal(drawing.edges(box, 1.0, 2000, positions=agent_x[selected]), expected)
+    assert drawing._located != grid.builds  # found in their cells: no pass over all agents
+    off = agent_x[selected] + np.asarray(1.5, dtype=engine.real)  # a cell or two away from where they were sorted
+    drawing = SubsetDrawing(grid, selected)
+    np.testing.assert_array_equal(drawing.edges(box, 1.0, 2000, positions=off), expected)
+    assert drawing._located == grid.builds  # not found there: the pass located them
 
 
 @pytest.mark.parametrize("boundary,replicas", [("periodic", 1), ("reflecting", 3), ("open", 1), ("open", 2)])

@@ -652,7 +652,7 @@ class Vicsek(GridModel):
             directions=np.asarray(drawn[1], dtype=np.float32),
             arrow_length=0.5 * p.radius,
             colors=colors,
-            edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
+            edges=drawing.edges(p.box, p.radius, max_edges, positions=drawn[0]).astype(np.float32),
             leader=leader,
             leader_direction=leader_direction,
             radius=0.15 * p.radius,
