@@ -749,8 +749,9 @@ class SubsetDrawing:
     :func:`drawn_rank`) and their neighbour edges, built on the device.
 
     Index arrays are uploaded once. The drawn agents' slots in the grid (``slot``) come from one pass over the
-    grid's agents per build (or a model's own rows pass, which says so with :meth:`located`); edges are then
-    counted and written for only as many drawn agents as the cap needs.
+    grid's agents per build (or a model's own rows pass, which says so with :meth:`located`), or, for the few
+    agents whose edges are drawn, from their positions when the model has them (:meth:`edges`); edges are counted
+    and written for only as many drawn agents as the cap needs.
     """
 
     def __init__(self, grid: CellGrid, selected_ids: np.ndarray) -> None:
