@@ -353,11 +353,16 @@ def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
     assert len(frame.edges) == 500
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "reflecting"])
-def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, boundary):
-    """A Vicsek step told by draw_next that its state will be drawn writes the drawn agents' rows itself; the frame
-    made from them equals, bit for bit, the frame its own pass over the grid draws from the same state."""
-    sim = make_sim(model="vicsek", params={"n": 3000, "box": 30.0, "boundary": boundary, "noise": 0.5}, steps=20)
+@pytest.mark.parametrize("model_name,params", [
+    ("vicsek", {"n": 3000, "box": 30.0, "boundary": "periodic", "noise": 0.5}),
+    ("vicsek", {"n": 3000, "box": 30.0, "boundary": "reflecting", "noise": 0.5}),
+    ("potential", {"n": 3000, "box": 60.0, "dt": 0.05}),
+    ("potential", {"n": 3000, "box": 20.0, "dt": 0.05, "dim": 3}),
+])
+def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, model_name, params):
+    """A lane-wise step told by draw_next that its state will be drawn writes the drawn agents' rows itself; the
+    frame made from them equals, bit for bit, the frame its own pass over the grid draws from the same state."""
+    sim = make_sim(model=model_name, params=params, steps=20)
     model = sim.model
     sim.step(4)
     selected = np.arange(2, 3000, 7)

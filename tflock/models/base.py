@@ -114,6 +114,12 @@ class GridModel(Model):
 
     _grid_step = -1
     _drawing: SubsetDrawing | None = None
+    # the frame draw_next announced, (its step, its drawing), and the rows a step wrote for it, (step, drawing,
+    # rows): tuples, which checkpoint() leaves out where it would keep a plain number; a step's unused drawing
+    # arguments (bits, word_rank, rows) when it writes no rows
+    _announced: tuple[int, SubsetDrawing] | None = None
+    _drawn: tuple[int, SubsetDrawing, np.ndarray] | None = None
+    _no_draw: tuple[ti.Ndarray, ti.Ndarray, np.ndarray] | None = None
 
     def _ensure_grid(self) -> None:
         if self._grid_step != self.step_index:
@@ -122,6 +128,33 @@ class GridModel(Model):
 
     def invalidate(self) -> None:
         self._grid_step = -1
+        self._drawn = None
+
+    def draw_next(self, selected: np.ndarray) -> None:
+        """Steps that can write the drawn agents' frame rows (the lane-wise CPU steps) do so for the state they make
+        (see :meth:`_draw_arguments`); the frame then needs no pass of its own."""
+        self._announced = (self.step_index + 1, self._subset(selected))
+
+    def _draw_arguments(self, layers: int, width: int, static: bool = False) -> tuple:
+        """``(draw, bits, word_rank, rows)`` for a step kernel about to make the state a frame was announced for:
+        draw = 1 and fresh rows (layers, M, width) for it to write, which :meth:`_rows_written` then returns; else
+        draw = 0 and unused arrays. `static`: draw is True / False, for a kernel that takes it as a template."""
+        announced = self._announced
+        if announced is not None and announced[0] == self.step_index + 1 and len(announced[1].selected_ids):
+            drawing = announced[1]
+            rows = np.empty((layers, len(drawing.selected_ids), width), dtype=self.grid.real)
+            self._drawn = (self.step_index + 1, drawing, rows)
+            return True if static else 1, drawing.bits, drawing.word_rank, rows
+        self._drawn = None
+        if self._no_draw is None or self._no_draw[2].shape != (layers, 1, width):
+            self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1),
+                             np.zeros((layers, 1, width), dtype=self.grid.real))
+        return False if static else 0, *self._no_draw
+
+    def _rows_written(self, drawing: SubsetDrawing) -> np.ndarray | None:
+        """The frame rows the last step wrote for the current state and `drawing`, if it wrote them."""
+        drawn = self._drawn
+        return drawn[2] if drawn is not None and drawn[0] == self.step_index and drawn[1] is drawing else None
 
     def build_neighbours(self) -> None:
         """Rebuild the neighbour grid for the current positions (benchmarks time it apart from the step)."""

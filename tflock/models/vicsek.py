@@ -47,7 +47,6 @@ from tflock.models.base import GridModel
 from tflock.neighbors import (
     LANES,
     CellGrid,
-    SubsetDrawing,
     drawn_rank,
     lanes,
     load_cell,
@@ -486,12 +485,6 @@ class Vicsek(GridModel):
         self.trig = ti.ndarray(ftype, (2, m))  # cos and sin of theta, element by element
         self.graph = NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
-        # the frame draw_next announced: (its step, its drawing), a tuple (checkpoint() would keep a plain number);
-        # the rows the lane-wise step wrote for it: (step, drawing, rows); the step's drawing arguments when it
-        # writes none (bits, word_rank, rows; unused)
-        self._announced: tuple[int, SubsetDrawing] | None = None
-        self._drawn: tuple[int, SubsetDrawing, np.ndarray] | None = None
-        self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1), np.zeros((3, 1, 2), dtype=real))
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
         draws = [initial_state(params, seed + r) for r in range(replicas)]
@@ -525,14 +518,6 @@ class Vicsek(GridModel):
             self.hist_theta.from_numpy(np.ascontiguousarray(hist_theta, dtype=real))
         self.step_index = step
         self.invalidate()
-
-    def draw_next(self, selected: np.ndarray) -> None:
-        """The lane-wise step writes the frame rows of the state it makes (no pass of the frame's own)."""
-        self._announced = (self.step_index + 1, self._subset(selected))
-
-    def invalidate(self) -> None:
-        super().invalidate()
-        self._drawn = None
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -574,18 +559,10 @@ class Vicsek(GridModel):
         _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(),
                         grid.pos_sorted, self.payload, self.sums)
-        drawing = None  # the drawing of a frame announced for the state this step makes: its rows come with it
-        if self._announced is not None and self._announced[0] == self.step_index + 1:
-            drawing = self._announced[1]
-        if drawing is not None and len(drawing.selected_ids):
-            drawn = np.empty((3, len(drawing.selected_ids), 2), dtype=grid.real)
-            draw = (1, drawing.bits, drawing.word_rank, drawn)
-        else:
-            drawn, draw = None, (0, *self._no_draw)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
                 inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, grid.id_sorted, grid.pos_sorted,
-                self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated, *draw)
-        self._drawn = None if drawn is None else (self.step_index + 1, drawing, drawn)
+                self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
+                *self._draw_arguments(3, 2))
 
     def metrics(self) -> dict[str, float]:
         if self.replicas > 1:
@@ -630,9 +607,8 @@ class Vicsek(GridModel):
         p = self.params
         drawing = self.drawing(selected)
         grid = self.grid
-        if self._drawn is not None and self._drawn[:2] == (self.step_index, drawing):
-            drawn = self._drawn[2]  # written by the step (draw_next)
-        else:  # written in place on the CPU: no copy kernel
+        drawn = self._rows_written(drawing)  # by the step, for a frame draw_next announced
+        if drawn is None:  # written in place on the CPU: no copy kernel
             drawn = np.zeros((3, len(selected), 2), dtype=grid.real)
             if len(selected):
                 _drawn_rows(self.n_total, grid.id_sorted, grid.order, drawing.bits, drawing.word_rank,
