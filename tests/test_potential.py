@@ -262,7 +262,7 @@ def test_lane_wise_step_equals_per_agent_step(engine, dim):
         if lane_wise:
             _step_lanes(g.total_buckets, g.cells_per_side, *args, dim, g.boundary, grid.start, grid.runs(),
                         grid.id_sorted, grid.pos_sorted, model.scratch, model.pos, model.vel, model.ids,
-                        *model._draw_arguments(2, dim, static=True))  # no frame announced: no rows
+                        *model._draw_arguments(2, dim))  # no frame announced: no rows
         else:
             _step_switching(n, *args, dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start, grid.mixed,
                             grid.id_sorted, grid.pos_sorted, grid.coords_sorted, model.scratch, model.pos, model.vel,

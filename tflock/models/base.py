@@ -135,21 +135,21 @@ class GridModel(Model):
         (see :meth:`_draw_arguments`); the frame then needs no pass of its own."""
         self._announced = (self.step_index + 1, self._subset(selected))
 
-    def _draw_arguments(self, layers: int, width: int, static: bool = False) -> tuple:
+    def _draw_arguments(self, layers: int, width: int) -> tuple:
         """``(draw, bits, word_rank, rows)`` for a step kernel about to make the state a frame was announced for:
-        draw = 1 and fresh rows (layers, M, width) for it to write, which :meth:`_rows_written` then returns; else
-        draw = 0 and unused arrays. `static`: draw is True / False, for a kernel that takes it as a template."""
+        draw = True and fresh rows (layers, M, width) for it to write, which :meth:`_rows_written` then returns; else
+        draw = False and unused arrays (a kernel may take draw as an i32 or as a template)."""
         announced = self._announced
         if announced is not None and announced[0] == self.step_index + 1 and len(announced[1].selected_ids):
             drawing = announced[1]
             rows = np.empty((layers, len(drawing.selected_ids), width), dtype=self.grid.real)
             self._drawn = (self.step_index + 1, drawing, rows)
-            return True if static else 1, drawing.bits, drawing.word_rank, rows
+            return True, drawing.bits, drawing.word_rank, rows
         self._drawn = None
         if self._no_draw is None or self._no_draw[2].shape != (layers, 1, width):
             self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1),
                              np.zeros((layers, 1, width), dtype=self.grid.real))
-        return False if static else 0, *self._no_draw
+        return False, *self._no_draw
 
     def _rows_written(self, drawing: SubsetDrawing) -> np.ndarray | None:
         """The frame rows the last step wrote for the current state and `drawing`, if it wrote them."""

@@ -403,7 +403,7 @@ class Potential(GridModel):
                 if self.lane_wise and g.boundary == BOUNDED:
                     _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, self.dim, g.boundary,
                                 grid.start, grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos,
-                                self.vel, self.ids, *self._draw_arguments(2, self.dim, static=True))
+                                self.vel, self.ids, *self._draw_arguments(2, self.dim))
                 else:
                     _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.boundary, g.cells_per_side,
                                     g.n_buckets, grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted,
