@@ -19,9 +19,11 @@ import pytest
 import rerun as rr
 
 from tflock.record import (
+    FLUSH_NUM_BYTES,
     Frame,
     Recorder,
     WorldSpec,
+    batcher_config,
     heading_colors,
     read_recording,
     verify_recording,
@@ -135,6 +137,19 @@ def test_metrics_table_only_and_validation(tmp_path: Path) -> None:
         WorldSpec(2, "torus", 1.0)
     with pytest.raises(ValueError, match="dim"):
         WorldSpec(4, "open", 1.0)
+
+
+def test_batcher_sends_big_rows_alone_unless_the_environment_says(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rows of a frame go on as soon as FLUSH_NUM_BYTES are pending; a user's RERUN_FLUSH_NUM_BYTES wins, and
+    Rerun's other variables still apply."""
+    monkeypatch.delenv("RERUN_FLUSH_NUM_BYTES", raising=False)
+    monkeypatch.setenv("RERUN_FLUSH_TICK_SECS", "0.5")
+    config = batcher_config()
+    assert config is not None
+    assert config.flush_num_bytes == FLUSH_NUM_BYTES < rr.ChunkBatcherConfig.DEFAULT().flush_num_bytes
+    assert config.flush_tick.total_seconds() == 0.5
+    monkeypatch.setenv("RERUN_FLUSH_NUM_BYTES", "4096")
+    assert batcher_config() is None
 
 
 def test_heading_colors() -> None:

@@ -67,6 +67,8 @@ SPAWN_PORT = 9876
 LEADER_COLOR = (255, 255, 255)
 EDGE_COLOR = (170, 170, 170, 90)
 BOUNDS_COLOR = (200, 200, 200)
+#: Rerun's batcher sends its pending rows on once they hold this many bytes (see :func:`batcher_config`)
+FLUSH_NUM_BYTES = 256 * 1024
 _METRIC_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 _TOML_BLOCK = re.compile(r"^(`{3,})toml\n(.*?)\n\1[ \t]*$", re.DOTALL | re.MULTILINE)
 
@@ -127,6 +129,19 @@ def _check_writable(path: Path, what: str) -> Path:
     return path
 
 
+def batcher_config() -> rr.ChunkBatcherConfig | None:
+    """Rerun's batching with :data:`FLUSH_NUM_BYTES` in place of its 2 MiB default, unless RERUN_FLUSH_NUM_BYTES is
+    set (None: Rerun reads its environment). With the default, a frame of 50k agents (0.6 MB of points, 1 MB of
+    arrows) waits for the next and the two are copied into one chunk, in fresh pages; sent on alone, each row is
+    its own chunk (Rerun alone, 50k points and arrows a frame: page faults ~350 -> ~60 a frame). Logging every step
+    at N = 1e6, six interleaved pairs of ``tflock bench --models vicsek --sizes 1e6 --states uniform --log``: a
+    logged step 43.6 -> 39.5 ms at the median, faster in each pair.
+    Rerun's other thresholds (its 200 ms tick, the RERUN_FLUSH_TICK_SECS it reads) still gather small rows."""
+    if "RERUN_FLUSH_NUM_BYTES" in os.environ:
+        return None
+    return rr.ChunkBatcherConfig(flush_num_bytes=FLUSH_NUM_BYTES)
+
+
 class Recorder:
     """Writes a tflock run to Rerun (file, native viewer and/or a running viewer) and a metrics CSV.
 
@@ -176,7 +191,8 @@ class Recorder:
         if connect:
             sinks.append(rr.GrpcSink(connect))
         self.enabled = bool(sinks) or spawn
-        self.rec = rr.RecordingStream(application_id, recording_id=recording_id, default_enabled=self.enabled)
+        self.rec = rr.RecordingStream(application_id, recording_id=recording_id, default_enabled=self.enabled,
+                                      batcher_config=batcher_config())
         self.rec.set_log_time_enabled(False)
         self._csv_file: IO[str] | None = None
         try:
