@@ -666,8 +666,9 @@ def test_memory_estimate_counts_the_allocated_arrays(engine: Any, model: str, ov
 # The real entry point: no traceback reaches a terminal
 
 
-def run_entry_point(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+def run_entry_point(*args: str, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, **(env or {}),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
     return subprocess.run([sys.executable, "-m", "tflock", *args], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=120, check=False)
 
@@ -682,10 +683,21 @@ def run_entry_point(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 ], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect"])
 def test_entry_point_prints_one_line(workdir: Path, args: list[str]) -> None:
     before = listing(workdir)
-    result = run_entry_point(*args, cwd=workdir)
+    assert_entry_point_refuses(run_entry_point(*args, cwd=workdir))
+    assert listing(workdir) == before
+
+
+def test_bad_lanes_variable_prints_one_line(workdir: Path) -> None:
+    before = listing(workdir)
+    result = run_entry_point("sim", "--steps", "1", cwd=workdir, env={"TFLOCK_LANES": "12"})
+    assert_entry_point_refuses(result)
+    assert "TFLOCK_LANES: must be 8 or 16" in result.stderr
+    assert listing(workdir) - before <= {"recordings"}  # at most the default output folder, empty (as for engine.arch)
+
+
+def assert_entry_point_refuses(result: subprocess.CompletedProcess[str]) -> None:
     described = f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
     assert result.returncode == 2, described
     assert "Traceback" not in result.stdout + result.stderr, described
     assert result.stdout == "" and len(result.stderr.splitlines()) == 1, described
     assert result.stderr.startswith("error: "), described
-    assert listing(workdir) == before

@@ -3,6 +3,7 @@
 each run is a subprocess."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -45,3 +46,44 @@ def test_one_and_two_threads_give_identical_runs(tmp_path, model, params):
     assert one["state_x"].dtype == np.float32 and len(one.files) > 5
     for key in one.files:
         assert np.array_equal(one[key], two[key], equal_nan=True), key
+
+
+LANES_SCRIPT = """
+import json, sys, numpy as np
+from tflock import Simulation
+from tflock.neighbors import LANES
+arrays = {"lanes": np.array(LANES)}
+for k, (model, params) in enumerate(json.loads(sys.argv[1])):
+    sim = Simulation(model=model, params=params, engine={"precision": "f32"}, steps=40, seed=5)
+    sim.run()
+    arrays.update({f"{k}_{name}": v for name, v in sim.state().items() if isinstance(v, np.ndarray)})
+np.savez(sys.argv[2], **arrays)
+"""
+
+#: workloads of every lane-wise CPU kernel: Vicsek's sums and update (periodic and reflecting), potential's step in
+#: 2D and 3D, formation's scan with cells of side R and with large sparse cells
+LANE_WORKLOADS = [
+    ("vicsek", {**VICSEK, "boundary": "periodic"}),
+    ("vicsek", {**VICSEK, "boundary": "reflecting", "rule": "average", "leader": {"enabled": True}}),
+    ("potential", {"n": 3000, "box": 60.0}),
+    ("potential", {"n": 3000, "box": 19.0, "dim": 3}),
+    ("formation", {"n": 3000, "world": 400.0, "init_length": 120.0, "init_width": 60.0}),
+    ("formation", {"n": 3000, "world": 6000.0, "init_length": 1000.0, "init_width": 1000.0}),
+]
+
+
+def test_8_and_16_lanes_give_identical_runs(tmp_path):
+    """The lanes of the CPU kernels (tflock.engine.host_lanes) change the speed, never the trajectory: a block's
+    wider window only adds candidates beyond R."""
+    runs = []
+    for lanes in ("8", "16"):
+        out = tmp_path / f"lanes{lanes}.npz"
+        subprocess.run([sys.executable, "-c", LANES_SCRIPT, json.dumps(LANE_WORKLOADS), str(out)], check=True,
+                       timeout=600, env={**os.environ, "TFLOCK_LANES": lanes})
+        runs.append(np.load(out))
+    eight, sixteen = runs
+    assert int(eight["lanes"]) == 8 and int(sixteen["lanes"]) == 16
+    assert len(eight.files) > 3 * len(LANE_WORKLOADS)
+    for key in eight.files:
+        if key != "lanes":
+            assert np.array_equal(eight[key], sixteen[key], equal_nan=True), key

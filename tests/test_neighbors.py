@@ -8,7 +8,7 @@ from conftest import ARCH, PRECISION
 from tflock import reference as ref
 from tflock.config import load_config
 from tflock.models.vicsek import Vicsek
-from tflock.neighbors import CellGrid, SubsetDrawing, run_at, window_run_wraps
+from tflock.neighbors import LANES, CellGrid, SubsetDrawing, run_at, window_run_wraps
 from tflock.space import WINDOW
 
 
@@ -300,7 +300,7 @@ def test_window_runs_skip_the_minimum_image_only_where_it_is_the_plain_differenc
     """A run of a window grid that takes plain differences (window_run_wraps false) has every pair of its agents
     and its stencil's candidates less than box / 2 apart along each axis, where the minimum image is the plain
     difference; a swarm away from the torus's edges takes that path in most runs, one at its edges in few."""
-    box, radius, n = 200.0, 1.5, 600
+    box, radius, n = 200.0, 1.5, 75 * LANES  # ~9 agents a cell whatever the lanes: runs of one or two cells
     rng = np.random.default_rng(len(where))
     offset = {"middle": 90.0, "below the upper edges": box - 12.0, "astride the corner": -6.0}
     x = (rng.random((n, 2)) * 12.0 + offset[where]) % box

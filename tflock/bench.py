@@ -286,7 +286,9 @@ def run_case(case: BenchCase) -> BenchResult:
         record = Path(tmp) / "bench.rrd" if case.log else False
         sim = Simulation(case_config(case), record=record)
         model = sim.model
-        result.engine = f"{sim.engine.arch}, {sim.engine.threads} threads, {sim.engine.precision}"
+        e = sim.engine
+        lanes = f", {e.lanes} lanes" if e.arch == "cpu" else ""
+        result.engine = f"{e.arch}, {e.threads} threads, {e.precision}{lanes}"
         result.box = float(next(getattr(model.params, k) for k in LENGTHS if hasattr(model.params, k)))
         result.setup_s = time.perf_counter() - t0
         result.first_step_s = _timed(lambda: model.advance(1), ti.sync) / 1e3
@@ -346,19 +348,21 @@ def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
 
 
 def machine() -> dict[str, Any]:
-    """Where the numbers come from."""
+    """Where the numbers come from: the CPU (its family and model tell hosts with the same model name apart, and
+    whether it has AVX-512 decides the lanes of the CPU kernels), cores, memory, versions, GPUs."""
     import taichi as ti
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    info = {"cpu": cpu, "cores": os.cpu_count(), "memory_gb": round(os.sysconf("SC_PAGE_SIZE")
-                                                                      * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
+    from tflock.engine import cpu_identity
+
+    cpu = cpu_identity()
+    info = {"cpu": cpu.get("model name") or platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "memory_gb": round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1),
             "python": platform.python_version(), "numpy": np.__version__,
             "taichi": ".".join(map(str, ti.__version__)), "platform": platform.platform()}
+    if cpu:
+        flags = cpu.get("flags", "").split()
+        info["cpu_id"] = " ".join(f"{k} {cpu.get(k, '?')}" for k in ("vendor_id", "cpu family", "model"))
+        info["vector"] = "avx512f" if "avx512f" in flags else ("avx2" if "avx2" in flags else "other")
     gpus = _nvidia_gpus()
     if gpus:
         info["gpu"] = gpus

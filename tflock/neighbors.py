@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from tflock.engine import current_engine
+from tflock.engine import current_engine, host_lanes
 from tflock.space import OPEN, PERIODIC, WINDOW, boundary_code, displacement
 
 _HASH = (73856093, 19349663, 83492791)
@@ -61,8 +61,9 @@ SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 BOUNDED = 3
 #: buckets a periodic box's window grid may use at least (see CellGrid)
 WINDOW_MIN_BUCKETS = 4096
-#: agents a lane-wise CPU kernel treats together: one AVX2 register of float32 (see :meth:`CellGrid.runs`)
-LANES = 8
+#: agents a lane-wise CPU kernel treats together, 8 or 16 float32 lanes for this CPU (see :func:`host_lanes` and
+#: :meth:`CellGrid.runs`)
+LANES = host_lanes()
 
 
 @dataclass(frozen=True)

@@ -105,11 +105,11 @@ NEAREST, ZONES, FAR = 1, 2, 4
 
 def sparse_cells(cell_size: float, params: FormationParams) -> bool:
     """Whether the lane-wise scan skips a candidate beyond reach of every lane of its block (:func:`_scan` with
-    ``FAR``): where cells are so large (over 3.3 R wide) that even a run of one cell (3 x 3 of them) holds over four
-    times the area within reach of its 8 agents, most candidates are out of reach of all of them (the default
-    workload at 1e6: a 2000 x 2000 tiling of cells 5.2 R wide; step kernel 106-108 -> 98-99 ms on one thread). With
-    cells of side R nearly every candidate is near some lane, and the branch only costs (30 % with ~22 neighbours).
-    Reach is R: the parameters keep the minimum separation within it."""
+    ``FAR``): where cells are so large (over 3.3 R wide with 8 lanes, 4.7 R with 16) that even a run of one cell
+    (3 x 3 of them) holds over four times the area within reach of its LANES agents, most candidates are out of reach
+    of all of them (the default workload at 1e6: a 2000 x 2000 tiling of cells 5.2 R wide; step kernel 106-108 ->
+    98-99 ms on one thread). With cells of side R nearly every candidate is near some lane, and the branch only costs
+    (30 % with ~22 neighbours). Reach is R: the parameters keep the minimum separation within it."""
     return 9 * cell_size**2 > 4 * LANES * math.pi * params.radius**2
 
 

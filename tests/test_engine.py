@@ -1,0 +1,42 @@
+"""The engine's choice of lanes for the CPU kernels, from the CPU's identity or TFLOCK_LANES (the trajectories do
+not depend on it: test_determinism runs both)."""
+
+from pathlib import Path
+
+import pytest
+
+from tflock.engine import cpu_identity, host_lanes, lanes_for
+
+ZEN5_FLAGS = "fpu sse2 avx avx2 fma avx512f avx512dq avx512bw avx512vl"
+
+
+def test_cpu_identity_reads_the_first_processor(tmp_path: Path) -> None:
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 26\nmodel\t\t: 2\n"
+                    "model name\t: AMD EPYC\nflags\t\t: fpu avx2 avx512f\n\n"
+                    "processor\t: 1\nvendor_id\t: GenuineIntel\ncpu family\t: 6\n")
+    assert cpu_identity(str(info)) == {"vendor_id": "AuthenticAMD", "cpu family": "26", "model": "2",
+                                       "model name": "AMD EPYC", "flags": "fpu avx2 avx512f"}
+    assert cpu_identity(str(tmp_path / "missing")) == {}
+
+
+@pytest.mark.parametrize("cpu,lanes", [
+    ({"vendor_id": "AuthenticAMD", "cpu family": "26", "flags": ZEN5_FLAGS}, 16),  # Zen 5: full-width AVX-512
+    ({"vendor_id": "AuthenticAMD", "cpu family": "26", "flags": "fpu avx2 fma"}, 8),  # no AVX-512 exposed
+    ({"vendor_id": "AuthenticAMD", "cpu family": "25", "flags": ZEN5_FLAGS}, 8),  # Zen 4: 512-bit split in two
+    ({"vendor_id": "AuthenticAMD", "cpu family": "23", "flags": "fpu avx2 fma"}, 8),  # Zen 2
+    ({"vendor_id": "GenuineIntel", "cpu family": "6", "flags": ZEN5_FLAGS}, 8),  # not measured: the safe width
+    ({}, 8),  # no /proc/cpuinfo (macOS, Windows) or not x86
+])
+def test_lanes_for_the_cpu(cpu: dict[str, str], lanes: int) -> None:
+    assert lanes_for(cpu) == lanes
+
+
+@pytest.mark.parametrize("value,lanes", [("8", 8), (" 16 ", 16), ("12", None), ("", None)])
+def test_tflock_lanes_chooses(monkeypatch: pytest.MonkeyPatch, value: str, lanes: int | None) -> None:
+    monkeypatch.setenv("TFLOCK_LANES", value)
+    host_lanes.cache_clear()
+    try:
+        assert host_lanes() == (lanes or lanes_for(cpu_identity()))
+    finally:
+        host_lanes.cache_clear()
