@@ -77,7 +77,7 @@ def lanes_for(cpu: dict[str, str]) -> int:
     `potential` (15 neighbours) from 44.9 to 37.1 ms a step from the uniform start and from 42.4 to 35.6 ms after
     100 steps, and the Vicsek step after 100 steps from 38.1 to 36.6 ms; Vicsek's uniform start (29.4-30.2 against
     29.5-30.9 ms in the quiet runs) and `formation` (51 / 58 ms) did not change: a block of 16 agents visits fewer
-    candidates per agent than two blocks of 8 (~30 % fewer in 3D), for the same instructions. CPUs that split 512-bit
+    candidates per agent than two blocks of 8, for the same instructions a candidate. CPUs that split 512-bit
     operations in two (AMD's Zen 4) or have fewer 512-bit ports (Intel's client cores) would pay twice a candidate
     for that; they keep 8 (not measured here; TFLOCK_LANES=16 tries it)."""
     family = cpu.get("cpu family", "")
