@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from tflock.engine import host_lanes
 from tflock.record import read_recording, verify_recording
 
 try:
@@ -123,9 +124,9 @@ def test_default_run_records_under_recordings(default_run: Run, default_rrd: Pat
     assert f"{DEFAULT_STEPS} of {DEFAULT_STEPS} steps" in result.stdout
 
 
-def test_summary_names_the_cpu_engine_and_its_threads(default_run: Run) -> None:
+def test_summary_names_the_cpu_engine_its_threads_and_lanes(default_run: Run) -> None:
     engine_line = next(line for line in default_run.result.stdout.splitlines() if " engine " in line)
-    assert f"cpu, {os.cpu_count()} threads" in engine_line
+    assert f"cpu, {os.cpu_count()} threads, f32, {host_lanes()} lanes" in engine_line
 
 
 def test_out_path_is_honoured_and_log_every_thins_frames(tmp_path: Path) -> None:

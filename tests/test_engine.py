@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from tflock.engine import cpu_identity, host_lanes, lanes_for
+from tflock.engine import EngineInfo, cpu_identity, host_lanes, lanes_for
 
 ZEN5_FLAGS = "fpu sse2 avx avx2 fma avx512f avx512dq avx512bw avx512vl"
 
@@ -40,3 +40,8 @@ def test_tflock_lanes_chooses(monkeypatch: pytest.MonkeyPatch, value: str, lanes
         assert host_lanes() == (lanes or lanes_for(cpu_identity()))
     finally:
         host_lanes.cache_clear()
+
+
+def test_describe_names_the_lanes_on_the_cpu_only() -> None:
+    assert EngineInfo("cpu", "auto", 2, "f32", 16).describe() == "cpu, 2 threads, f32, 16 lanes"
+    assert EngineInfo("cuda", "cuda", 0, "f64", 8).describe() == "cuda, f64"

@@ -286,9 +286,7 @@ def run_case(case: BenchCase) -> BenchResult:
         record = Path(tmp) / "bench.rrd" if case.log else False
         sim = Simulation(case_config(case), record=record)
         model = sim.model
-        e = sim.engine
-        lanes = f", {e.lanes} lanes" if e.arch == "cpu" else ""
-        result.engine = f"{e.arch}, {e.threads} threads, {e.precision}{lanes}"
+        result.engine = sim.engine.describe()
         result.box = float(next(getattr(model.params, k) for k in LENGTHS if hasattr(model.params, k)))
         result.setup_s = time.perf_counter() - t0
         result.first_step_s = _timed(lambda: model.advance(1), ti.sync) / 1e3

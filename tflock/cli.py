@@ -206,8 +206,7 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     table.add_column(style="bold")
     table.add_column()
     table.add_row("agents", f"{cfg.params.n:,}")
-    table.add_row("engine", f"{simulation.engine.arch}, {simulation.engine.threads} threads, "
-                            f"{simulation.engine.precision}")
+    table.add_row("engine", simulation.engine.describe())
     metrics = simulation.metrics()
     for name in simulation.model.metric_descriptions:
         if len(metrics[name]):

@@ -44,6 +44,12 @@ class EngineInfo:
     precision: str     # f32 or f64
     lanes: int = 8     # agents the lane-wise CPU kernels take at once (:func:`host_lanes`)
 
+    def describe(self) -> str:
+        """One line for summaries and benchmark tables, e.g. ``cpu, 2 threads, f32, 16 lanes``."""
+        if self.arch != "cpu":
+            return f"{self.arch}, {self.precision}"
+        return f"{self.arch}, {self.threads} threads, {self.precision}, {self.lanes} lanes"
+
     @property
     def real(self) -> type:
         """NumPy dtype of floating-point state arrays."""
