@@ -4,8 +4,9 @@ not depend on it: test_determinism runs both)."""
 from pathlib import Path
 
 import pytest
+from conftest import ARCH, PRECISION
 
-from tflock.engine import EngineInfo, cpu_identity, host_lanes, lanes_for
+from tflock.engine import EngineError, EngineInfo, cpu_identity, host_lanes, init_engine, lanes_for
 
 ZEN5_FLAGS = "fpu sse2 avx avx2 fma avx512f avx512dq avx512bw avx512vl"
 
@@ -45,3 +46,12 @@ def test_tflock_lanes_chooses(monkeypatch: pytest.MonkeyPatch, value: str, lanes
 def test_describe_names_the_lanes_on_the_cpu_only() -> None:
     assert EngineInfo("cpu", "auto", 2, "f32", 16).describe() == "cpu, 2 threads, f32, 16 lanes"
     assert EngineInfo("cuda", "cuda", 0, "f64", 8).describe() == "cuda, f64"
+
+
+def test_init_engine_refuses_a_bad_lanes_value_only(monkeypatch: pytest.MonkeyPatch, engine: EngineInfo) -> None:
+    """An empty TFLOCK_LANES means unset, as host_lanes reads it; anything but 8 or 16 is an engine error."""
+    monkeypatch.setenv("TFLOCK_LANES", " ")
+    assert init_engine(ARCH, 0, PRECISION) is engine
+    monkeypatch.setenv("TFLOCK_LANES", "12")
+    with pytest.raises(EngineError, match="TFLOCK_LANES: must be 8 or 16"):
+        init_engine(ARCH, 0, PRECISION)

@@ -98,8 +98,13 @@ def host_lanes() -> int:
     process: TFLOCK_LANES when it says 8 or 16, else :func:`lanes_for` this CPU. The trajectory is the same bit for
     bit either way (a block's wider window only adds candidates beyond R, which add nothing); only the speed
     differs."""
-    chosen = os.environ.get("TFLOCK_LANES", "").strip()
+    chosen = _lanes_chosen()
     return int(chosen) if chosen in LANE_COUNTS else lanes_for(cpu_identity())
+
+
+def _lanes_chosen() -> str:
+    """TFLOCK_LANES as set, stripped ("" when unset or empty: chosen for this CPU)."""
+    return os.environ.get("TFLOCK_LANES", "").strip()
 
 
 def _arch_name(arch: object) -> str:
@@ -114,8 +119,8 @@ def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> 
     for a GPU arch that this machine lacks is an error, not a silent fallback.
     """
     global _current
-    lanes = os.environ.get("TFLOCK_LANES")
-    if lanes is not None and lanes.strip() not in LANE_COUNTS:
+    lanes = _lanes_chosen()
+    if lanes and lanes not in LANE_COUNTS:
         raise EngineError(f"TFLOCK_LANES: must be 8 or 16 (or unset: chosen for this CPU), got {lanes!r}")
     if arch not in ARCHES:
         raise EngineError(f"engine.arch: must be one of {', '.join(ARCHES)}, got {arch!r}")
