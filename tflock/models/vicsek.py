@@ -73,6 +73,10 @@ from tflock.space import (
     wrap_two_pi,
 )
 
+#: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
+#: arithmetic differently at each vector width (8 and 16 gave headings 1 ulp apart on an AVX2 host), and the
+#: trajectory must not depend on TFLOCK_LANES
+UPDATE_WIDTH = 8
 RULES = {"vector": 0, "average": 1, "relative": 2, "laplacian": 3}
 VECTOR, AVERAGE, RELATIVE, LAPLACIAN = 0, 1, 2, 3
 TWO_PI = 2 * math.pi
@@ -204,7 +208,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
 # kernel above visits each agent's stencil alone, with scalar calls to atan2/sin/cos: on two cores that cost
 # ~150 ns an agent before any neighbour (1e6 agents from a uniform start: ~120 ms of a ~140 ms step). Here
 # LANES agents of a run of cells share one pass over the run's stencil, each candidate compared with all of them
-# at once, and the per-agent update runs LANES agents at a time with polynomial trigonometry (tflock.fastmath).
+# at once, and the per-agent update runs UPDATE_WIDTH agents at a time with polynomial trigonometry (tflock.fastmath).
 
 
 @ti.kernel
@@ -356,11 +360,11 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
             drawn: ti.types.ndarray()):
     """New headings and positions, written at each agent's slot (the arrangement becomes this step's cell order);
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
-    for b in range(n // LANES):
-        _update_lanes(b * LANES, LANES, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary,
-                      leader, batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
-                      draw, bits, word_rank, drawn)
-    for s in range(n // LANES * LANES, n):
+    for b in range(n // UPDATE_WIDTH):
+        _update_lanes(b * UPDATE_WIDTH, UPDATE_WIDTH, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
+                      boundary, leader, batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn,
+                      updated, draw, bits, word_rank, drawn)
+    for s in range(n // UPDATE_WIDTH * UPDATE_WIDTH, n):
         _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
                       batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw, bits,
                       word_rank, drawn)
