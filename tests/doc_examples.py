@@ -12,10 +12,10 @@ be preceded by HTML comments, invisible on the rendered page, that say how it ru
 ``python tests/doc_examples.py WORKDIR RESULTS.json`` runs every block in one Python process, at the default
 engine (cpu, f32), each page's blocks in order in a folder of its own under WORKDIR that holds a link to the
 repository's ``configs/`` (so a page can make a recording and then inspect it). ``tflock`` commands run in this
-process through the CLI, except ``bench``, ``reproduce NAME`` and sweeps on workers, which start processes of
-their own and run as ``python -m tflock``. ``pip install`` and ``pytest`` lines are not run: the tests run in the
-installed package, and CI runs exactly these two commands on a fresh machine (.ci/run). Any other command must be
-in a not-run block.
+process through the CLI (``bench`` runs each case in a process of its own), except ``reproduce NAME`` and sweeps
+on workers, which start engines of their own and run as ``python -m tflock``. ``pip install`` and ``pytest``
+lines are not run: the tests run in the installed package, and CI runs exactly these two commands on a fresh
+machine (.ci/run). Any other command must be in a not-run block.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ REPO = Path(__file__).resolve().parents[1]
 LANGUAGES = ("bash", "python", "toml", "text")
 DIRECTIVE = re.compile(r"<!--\s*doctest:\s*(.*?)\s*-->", re.S)
 REPLACE = re.compile(r'^replace\s+"(.*)"\s*->\s*"(.*)"$', re.S)
-OWN_PROCESS = ("bench", "reproduce")  # they start engines (and processes) of their own
+OWN_PROCESS = ("reproduce",)  # it starts engines (and processes) of its own; bench runs each case in a process
 NOT_RUN_BY_RULE = {"pip": "installs packages (CI installs on a fresh machine)", "pytest": "the test suite itself"}
 
 
