@@ -1,4 +1,5 @@
-"""The Python API as the README shows it (keep the two in sync)."""
+"""The Python API as docs/api.md shows it, with assertions on what it returns (tests/test_docs.py runs the page's
+blocks as they are)."""
 
 import numpy as np
 import pytest

@@ -158,3 +158,12 @@ def test_logging_overhead_pairs_turns(monkeypatch):
     assert len(plain) == 3 * bench.LOG_TURNS == 24 and state["starts"] == {7}  # every turn from the case's state
     assert overhead == pytest.approx(0.5, abs=0.05)
     assert logged == pytest.approx(1.5 * 8, rel=0.1)  # the logging runs' median: 6 6 6 12 12 24 24 40 ms a step
+
+
+def test_results_go_under_results_bench_by_default():
+    """Beside reproduce's results/NAME, never into benchmarks/ (the committed reference set); test_docs checks that
+    the README's `tflock bench` example writes there."""
+    from tflock.bench import default_out
+
+    prefix = default_out(0.0)
+    assert prefix.parent.as_posix() == "results/bench" and prefix.name.startswith("bench-")

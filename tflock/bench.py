@@ -382,6 +382,12 @@ def cases(models: Iterable[str], sizes: Iterable[int], states: Iterable[str], **
     return [BenchCase(model=m, n=n, state=s, **common) for n in sorted(sizes) for m in models for s in states]
 
 
+def default_out(now: float | None = None) -> Path:
+    """``results/bench/bench-<date-time>`` in the working directory, beside ``tflock reproduce``'s ``results/NAME``:
+    a user's runs never mix with the reference results committed under ``benchmarks/`` (written with ``--out``)."""
+    return Path("results") / "bench" / f"bench-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now))}"
+
+
 def write_results(results: list[BenchResult], out: Path, command: str) -> list[Path]:
     """JSON (with the machine and the command), CSV, and a log-log PNG when matplotlib is installed."""
     import csv

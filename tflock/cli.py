@@ -327,13 +327,14 @@ def bench(
     peers: Annotated[bool, typer.Option("--peers/--no-peers", help=(
         "Time the peers: the NumPy reference, and the cKDTree and Numba steps where scipy / numba are installed "
         "(pip install tflock[bench])."))] = True,
-    prefix: Annotated[Path | None, typer.Option("--out", help="Results prefix (.json/.csv/.png added).")] = None,
+    prefix: Annotated[Path | None, typer.Option("--out", help=(
+        "Results prefix (.json/.csv/.png added) [results/bench/bench-DATE-TIME]."))] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", "-s", help=(
         "Override a model parameter of the default config, e.g. params.box=240 (lengths then scale with N to "
         "keep its density)."))] = None,
 ) -> None:
-    """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under benchmarks/."""
-    from tflock.bench import STATES, BenchCase, cases, run_in_subprocess, write_results
+    """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under results/bench/."""
+    from tflock.bench import STATES, BenchCase, cases, default_out, run_in_subprocess, write_results
 
     names = [m for m in models_.split(",") if m] or list(MODEL_DESCRIPTIONS)
     for name in names:
@@ -355,7 +356,7 @@ def bench(
         todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
                       repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers,
                       overrides=overrides)
-    prefix = prefix or Path("benchmarks") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
+    prefix = prefix or default_out()
     _refuse_bench_cases(todo, prefix)
     results = []
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

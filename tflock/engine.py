@@ -79,13 +79,10 @@ def lanes_for(cpu: dict[str, str]) -> int:
     """16 lanes on AMD's family 1Ah (Zen 5) with AVX-512, whose 512-bit operations run at full width; 8 (one AVX2
     register of float32) elsewhere. `cpu` as :func:`cpu_identity` gives it.
 
-    On this project's Zen 5 host (2026-11-24, N = 1e6, medians of six runs of each, interleaved) 16 lanes took 3D
-    `potential` (15 neighbours) from 44.9 to 37.1 ms a step from the uniform start and from 42.4 to 35.6 ms after
-    100 steps, and the Vicsek step after 100 steps from 38.1 to 36.6 ms; Vicsek's uniform start (29.4-30.2 against
-    29.5-30.9 ms in the quiet runs) and `formation` (51 / 58 ms) did not change: a block of 16 agents visits fewer
-    candidates per agent than two blocks of 8, for the same instructions a candidate. CPUs that split 512-bit
-    operations in two (AMD's Zen 4) or have fewer 512-bit ports (Intel's client cores) would pay twice a candidate
-    for that; they keep 8 (not measured here; TFLOCK_LANES=16 tries it)."""
+    A block of 16 agents visits fewer candidates per agent than two blocks of 8, for the same instructions a
+    candidate where 512-bit operations run at full width; the 3D `potential` step gains most (docs/performance.md).
+    CPUs that split 512-bit operations in two (AMD's Zen 4) or have fewer 512-bit ports (Intel's client cores) would
+    pay twice a candidate for that; they keep 8 (TFLOCK_LANES=16 tries it)."""
     family = cpu.get("cpu family", "")
     wide = (cpu.get("vendor_id") == "AuthenticAMD" and family.isdigit() and int(family) >= 0x1A
             and "avx512f" in cpu.get("flags", "").split())

@@ -236,8 +236,8 @@ def span_agents(lo, hi, cell, start: ti.template(), mixed: ti.template(), coords
 def load_vec(arr: ti.template(), i, dim: ti.template()):
     """Column i of a component-major (dim, n) ndarray as a Taichi vector.
 
-    Component-major arrays keep each coordinate contiguous, which lets LLVM vectorise the neighbour loops
-    (measured here: 0.25 ns per pair test against 2.1 ns with (n, dim) rows).
+    Component-major arrays keep each coordinate contiguous, which lets LLVM vectorise the neighbour loops (with
+    (n, dim) rows it does not).
     """
     return ti.Vector([arr[d, i] for d in ti.static(range(dim))])
 
@@ -629,7 +629,7 @@ class CellGrid:
         """The slot of each agent (``slot_of[agent]``) in the last build, filled on first use after it.
 
         Only metrics and drawn frames look agents up by id; filling it in every build would scatter one write
-        per agent over the whole array (about 10 of a build's 35 ms at N = 1e6 on the CPU).
+        per agent over the whole array, a sizeable part of a build.
         """
         if self._slots_build != self.builds:
             _fill_slots(self.n, self.id_sorted, self.slot_of)
@@ -808,7 +808,7 @@ class SubsetDrawing:
         A pair of two selected agents appears once; the far end uses the minimum image, so edges never span a
         periodic box. Agents are taken in id order until `max_edges` is reached (deterministic). With the drawn
         agents' `positions` (M, dim), exactly those the grid was built from, the few agents whose edges are drawn
-        are found in their own cells (at 1e6: ~0.05 ms where the pass over all agents takes 0.6-1 ms).
+        are found in their own cells instead of by a pass over all agents.
         """
         g = self.grid.geometry
         n_sel = len(self.selected_ids)
@@ -819,8 +819,7 @@ class SubsetDrawing:
                 self.grid.coords_sorted)
         # count the pairs of the first agents only, a chunk at a time (sized by the edges an agent gave so far, with
         # a margin), until they give max_edges: each agent costs a few cache misses (its cells lie anywhere in
-        # memory), ~1 us, so counting all 50k drawn agents of a large run took ~55 ms a pass where ~200 agents fill
-        # the default 4000 edges
+        # memory), and a few hundred agents fill the default 4000 edges where a large run draws tens of thousands
         # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
         # and from a GPU), where a Taichi ndarray would cost a copy each
         # the counting pass's unused offsets and edges are arrays of their own: on a GPU each NumPy argument is
@@ -836,7 +835,7 @@ class SubsetDrawing:
             counted = upto
             chunk = int(1.25 * (max_edges - total) * counted / total) + EDGE_CHUNK if total else 2 * chunk
         # the agents whose edges are drawn; the next frame counts about as many in its first chunk (a swarm changes
-        # little from frame to frame: one counting launch instead of two or more, each ~0.2 ms at 1e6)
+        # little from frame to frame: one counting launch instead of two or more)
         needed = counted if total < max_edges else int(np.searchsorted(np.cumsum(counts[:counted]), max_edges)) + 1
         self._first_chunk = int(1.1 * needed) + 8
         total = min(total, max_edges)

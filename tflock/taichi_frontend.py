@@ -4,11 +4,10 @@ While Taichi turns a kernel's Python AST into its IR, it formats, for every stat
 message that points at the source (``File ..., line ..., in f:`` then the line and a row of carets, each wrapped to
 80 columns by ``textwrap.TextWrapper``); the message is kept for error reports and debug-mode assertions. A
 ``ti.static`` loop visits its body once per unrolled pass and a ``ti.func`` is visited at every call, so the same
-messages are formatted again and again: a third of the front end's time before the first step (0.72 -> 0.48 s of
-CPU over the 36 kernels a Vicsek run compiles before step 1). The message depends only on where the node lies in
-its source, so :func:`memoize_position_messages` caches it under everything the original reads: the file, the
-function and its offset and indent, the node's kind and span, and the source lines it quotes. The messages are
-the same strings as before.
+messages are formatted again and again, a large share of the front end's time before the first step. The message
+depends only on where the node lies in its source, so :func:`memoize_position_messages` caches it under everything
+the original reads: the file, the function and its offset and indent, the node's kind and span, and the source
+lines it quotes. The messages are the same strings Taichi formats itself.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Taichi copies an ndarray to or from NumPy (``to_numpy``, ``from_numpy``, and ``fill`` for types other than
 f32/i32/u32) with a kernel of its own, compiled for every dtype and rank it meets. On the CPU an ndarray lives in
-host memory, so a NumPy view of that memory does the same copy with no kernel: before the first Vicsek step a run
-compiled eleven such instantiations (copy kernels and block sums, ~0.3-0.45 s of its start-up on this machine),
-and a copy runs at memory speed (a (2, 1e6) f32 array: 1-4 ms instead of 15-30 ms).
+host memory, so a NumPy view of that memory does the same copy with no kernel: a run compiles none of these
+instantiations before its first step (each costs tens of milliseconds however small), and a copy runs at memory
+speed.
 
 :func:`host_view` gives that view (CPU, scalar elements; ``None`` elsewhere); :func:`copy_on_host` makes
 ``to_numpy``, ``from_numpy`` and ``fill`` of such ndarrays use it. The values are the same: a plain copy, and

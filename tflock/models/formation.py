@@ -107,9 +107,9 @@ def sparse_cells(cell_size: float, params: FormationParams) -> bool:
     """Whether the lane-wise scan skips a candidate beyond reach of every lane of its block (:func:`_scan` with
     ``FAR``): where cells are so large (over 3.3 R wide with 8 lanes, 4.7 R with 16) that even a run of one cell
     (3 x 3 of them) holds over four times the area within reach of its LANES agents, most candidates are out of reach
-    of all of them (the default workload at 1e6: a 2000 x 2000 tiling of cells 5.2 R wide; step kernel 106-108 ->
-    98-99 ms on one thread). With cells of side R nearly every candidate is near some lane, and the branch only costs
-    (30 % with ~22 neighbours). Reach is R: the parameters keep the minimum separation within it."""
+    of all of them (the default workload at 1e6: a 2000 x 2000 tiling of cells 5.2 R wide). With cells of side R
+    nearly every candidate is near some lane, and the branch is pure cost. Reach is R: the parameters keep the minimum
+    separation within it."""
     return 9 * cell_size**2 > 4 * LANES * math.pi * params.radius**2
 
 
@@ -287,7 +287,7 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     speed = target
     if progress < 1:
         speed = v_from + (target - v_from) * progress
-    # polynomials (tflock.fastmath), not two libm calls: step kernel 103 -> 98 ms at 1e6 on one thread
+    # polynomials (tflock.fastmath), not two libm calls
     sin_new, cos_new = sin_cos(new)
     q = wrap_periodic(p + speed * ti.Vector([cos_new, sin_new]), c[WORLD])
     pos_new[0, s] = q[0]
@@ -328,8 +328,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
     if ti.static(lane_wise):
         first_pass = ti.static(NEAREST | ZONES | (FAR if sparse else 0))
         # only the buckets from the first agent's to the last one's: Taichi's CPU threads split a loop's range
-        # into contiguous parts, and a swarm filling half a window's rows left one thread all the work (a step
-        # kernel at 1e5, ~22 neighbours: 9.2-9.7 -> 6.4-6.9 ms on two threads)
+        # into contiguous parts, and a swarm filling half a window's rows would leave one thread all the work
         first = bucket_of_cell(load_cell(coords_sorted, 0, 2), nc, n_buckets, layout, 2)
         last = bucket_of_cell(load_cell(coords_sorted, n - 1, 2), nc, n_buckets, layout, 2)
         for occupied in range(last - first + 1):
@@ -349,15 +348,15 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                 # where the run's stencil is crowded enough that an agent expects more than two neighbours within the
                 # minimum separation, nearly every agent separates and uses no zone sum (eq. 4): the nearest
                 # neighbours first, the zone sums only for a block where some agent does not separate; elsewhere
-                # both in one pass (the same sums, in the same order, either way). Counted a block, not a run: taken
-                # out of the block loop, this count made the uncrowded default workload 40 % slower (1e6, one thread)
+                # both in one pass (the same sums, in the same order, either way). Counted a block, not a run: out of
+                # the block loop the count slows the uncrowded default workload
                 candidates = 0
                 for r in range(3):
                     b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, layout, 2)
                     candidates += e0 - b0 + e1 - b1
                 crowded = candidates * math.pi * c[SEP2] > 2.0 * 3 * (x1 - x0 + 2) * cell_size * cell_size
                 # the nearest neighbours, with the zone sums unless crowded: this loop stays inline (through
-                # _scan_run, with the parts picked at run time, the step kernel was 20-25 % slower, 1e6, one thread)
+                # _scan_run, with the parts picked at run time, the step kernel is markedly slower)
                 for r in range(3):
                     b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, layout, 2)
                     for h in range(2):
@@ -388,7 +387,7 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                         row, x0, x1, wraps, nc, start, layout, me, px, py, a_cos, a_sin, c_x, c_y, met, best,
                         best_id, away_x, away_y, c, zones, id_sorted, pos_sorted, payload, ZONES)
                 outside = 0  # one atomic add to the shared counter a block, not one an agent
-                # a loop, not unrolled: eight inlined copies of the update made the kernel 30 % slower
+                # a loop, not unrolled: inlined copies of the update would bloat and slow the kernel
                 for k in range(ti.min(LANES, a1 - i0)):
                     outside += _advance(i0 + k, t, seed, c, out_set, in_set, ti.Vector([va_x, va_y]),
                                         ti.Vector([next_x, next_y]), a_cos[k], a_sin[k], c_x[k], c_y[k], met[k],

@@ -80,7 +80,7 @@ _SPEED_PALETTE = color_table(_speed_palette(_SPEED_LEVELS))
 
 def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
     """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow), looked up in a
-    table of 1024 levels, within one level of each channel of the ramp itself (50k agents: 6 -> 1.6 ms)."""
+    table of 1024 levels, within one level of each channel of the ramp itself (one gather, no per-agent maths)."""
     t = np.clip(np.asarray(speed, dtype=np.float32) * np.float32(1.0 / scale), 0.0, 1.0)
     return look_up(_SPEED_PALETTE, np.rint(t * np.float32(_SPEED_LEVELS - 1)).astype(np.int64))
 
@@ -139,10 +139,9 @@ def _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim: ti.template(), id_s
                    pos_sorted: ti.template(), vel_sorted: ti.template()):
     """Add the terms of u_i (eq. 3) of the candidates [begin, end) within R to each lane's sums: p, v, u are
     (dim, LANES) matrices, a column an agent, `ids` its agent ids. A lane tells itself from the others by id, a
-    32-bit compare with one broadcast load; the slot (the loop's 64-bit index) took two compares and a pack
-    (step kernel 14.3 -> 13.0 ms at 1e5 in 3D, one thread). An exit that never fires keeps LLVM's loop vectoriser
-    off this loop, as in the Vicsek model's lane-wise sums (step kernel at 1e6 on one thread: 131 -> 120 ms in 3D,
-    32.6 -> 31.0 ms in 2D)."""
+    32-bit compare with one broadcast load, where the slot (the loop's 64-bit index) takes two compares and a pack.
+    An exit that never fires keeps LLVM's loop vectoriser off this loop, as in the Vicsek model's lane-wise sums
+    (vectorised across candidates too, the loop is slower)."""
     for k in range(begin, end):
         j = id_sorted[k]
         if j < 0:  # never: ids count from 0
@@ -170,7 +169,7 @@ def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: 
     :func:`_step_switching`, term for term and in the same order: a run's wider window only adds candidates beyond
     R, which are not added). With `draw`, the drawn agents' frame rows too: ``drawn[0]`` positions, ``drawn[1]``
     velocities, row r for the agent of rank r (:func:`drawn_rank`); a compiled variant of its own, since a run-time
-    flag made the 2D step ~4 % slower at 1e6 (19.7 -> 20.6 ms on one thread)."""
+    flag would slow every step, drawn or not."""
     for b in range(total_buckets):
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
         for block in range((a1 - a0 + LANES - 1) // LANES):

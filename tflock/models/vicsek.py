@@ -205,8 +205,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
 
 
 # The synchronous step on the CPU (box boundaries): three lane-wise kernels that LLVM vectorises. Taichi's general
-# kernel above visits each agent's stencil alone, with scalar calls to atan2/sin/cos: on two cores that cost
-# ~150 ns an agent before any neighbour (1e6 agents from a uniform start: ~120 ms of a ~140 ms step). Here
+# kernel above visits each agent's stencil alone, with scalar calls to atan2/sin/cos, which keep LLVM from
+# vectorising the update and dominate a step at a few neighbours an agent. Here
 # LANES agents of a run of cells share one pass over the run's stencil, each candidate compared with all of them
 # at once, and the per-agent update runs UPDATE_WIDTH agents at a time with polynomial trigonometry (tflock.fastmath).
 
@@ -390,9 +390,9 @@ def _drawn_rows(n: ti.i32, id_sorted: ti.types.ndarray(), order: ti.types.ndarra
     """Frame rows of the drawn agents (row r: the agent of rank r, see :func:`drawn_rank`): ``drawn[0]`` positions,
     ``drawn[1]`` heading vectors (cos, sin), ``drawn[2]`` (theta, 1 if updated), and their grid slots, by one pass
     over the grid's agents: sequential reads (the state is kept in the previous build's cell order, nearly the
-    grid's), where looking each drawn agent up by id missed the cache every time (1e6 agents, 50k drawn: 6 -> 3.5
-    ms). The lane-wise step writes these rows itself for a frame ``draw_next`` announced (this pass's 2.5-3.3 ms at
-    1e6 on 2 threads, against no measurable time in the step's ``_update``)."""
+    grid's), where looking each drawn agent up by id misses the cache every time. The lane-wise step writes these
+    rows itself for a frame ``draw_next`` announced, at no measurable cost in its ``_update``, which saves this
+    pass over all agents."""
     for s in range(n):
         r = drawn_rank(id_sorted[s], bits, word_rank)
         if r >= 0:
@@ -473,7 +473,7 @@ class Vicsek(GridModel):
         self.payload = ti.ndarray(ftype, (3, n))  # cos, sin, theta in cell order
         # |heading change| at the last step, and 1 where the agent updated; like pos and theta in the arrangement's
         # order (element s holds agent ids[s]): written at the agent's slot, not at its id, which would scatter
-        # two writes per agent over the whole array (with grid.slots(): 1e6 after 300 steps, 380-430 -> 310-340 ms)
+        # two writes per agent over the whole array (and need grid.slots())
         self.turn = ti.ndarray(ftype, n)
         self.updated = ti.ndarray(ti.i32, n)
         ring, m = (bound + 1, n) if self.asynchronous else (1, 1)  # unused 1-element arrays when synchronous

@@ -21,7 +21,8 @@ rho, their mean distance to the VA.
 
 phi and rho are taken at the end of the run (the formation then moves rigidly with the VA, so they equal their
 values when the DF is first reached); tau is exact (checked every step) and equals the cap when the DF is not
-reached. The formation replicas are not batched (one run after another), so the full size is long: see the README.
+reached. The formation replicas are not batched (one run after another), so the full size is long (see
+docs/reproduce.md).
 """
 
 import math
