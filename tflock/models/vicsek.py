@@ -34,6 +34,16 @@ from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, sin_cos
 from tflock.frame import Frame, WorldSpec, angle_colors
+from tflock.lane_graph import (
+    NO_LABEL,
+    LaneComponents,
+    block_roots,
+    degree_stats,
+    fold_label,
+    join_candidate,
+    settle_block,
+    stripe_range,
+)
 from tflock.metrics import (
     EXACT_PAIRS_MAX,
     SAMPLED_PAIRS,
@@ -72,6 +82,7 @@ from tflock.space import (
     wrap_pi,
     wrap_two_pi,
 )
+from tflock.taichi_host import host_view
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
 #: arithmetic differently at each vector width (8 and 16 gave headings 1 ulp apart on an AVX2 host), and the
@@ -282,6 +293,123 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
                     sums[2, i0 + k] = count[k]
 
 
+PLAIN, BEFORE, BLOCK = 0, 1, 2  # candidates of a stripe's block (see _neighbour_sums_graph)
+
+
+@ti.func
+def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+                      pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
+                      minimum_image: ti.template(), part: ti.template()):
+    """:func:`_accumulate` with the count for every rule, and for the components (tflock.lane_graph): candidates
+    before the block in the stripe (`part` BEFORE) fold their set label into each near lane's `label`
+    (tflock.lane_graph.fold_label), the block's own agents (BLOCK) set their bit in `inmask`. The sums are added as
+    :func:`_accumulate` adds them, in the same order."""
+    metric = ti.static(PERIODIC if minimum_image else REFLECTING)
+    for k in range(begin, end):
+        xk = pos_sorted[0, k]
+        if xk > 2 * box:  # never; keeps LLVM's loop vectoriser off this loop, as in _accumulate
+            break
+        dx = displacement(px, xk, box, metric)
+        dy = displacement(py, pos_sorted[1, k], box, metric)
+        near = dx * dx + dy * dy <= r2
+        if ti.static(rule == VECTOR):
+            acc_a += ti.select(near, payload[0, k], 0.0)
+            acc_b += ti.select(near, payload[1, k], 0.0)
+        elif ti.static(rule == RELATIVE):
+            acc_a += ti.select(near, wrap_pi(payload[2, k] - th), 0.0)
+        else:
+            acc_a += ti.select(near, payload[2, k], 0.0)
+        count += ti.select(near, 1.0, 0.0)
+        if ti.static(part == BEFORE):
+            label, other = fold_label(label, other, near, parent[k])
+        elif ti.static(part == BLOCK):
+            inmask |= ti.select(near, 1 << (k - i0), 0)
+    return acc_a, acc_b, count, label, other, inmask
+
+
+@ti.func
+def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2, box,
+                   pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
+                   minimum_image: ti.template()):
+    """The span [begin, end) in slot order, cut where its candidates stop being in an earlier stripe, before the
+    block, in the block [i0, i1) and after it."""
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        begin, ti.min(end, s_lo), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted,
+        payload, parent, rule, minimum_image, PLAIN)
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        ti.max(begin, s_lo), ti.min(end, i0), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+        pos_sorted, payload, parent, rule, minimum_image, BEFORE)
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        ti.max(begin, i0), ti.min(end, i1), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+        pos_sorted, payload, parent, rule, minimum_image, BLOCK)
+    return _accumulate_graph(ti.max(begin, i1), end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+                             pos_sorted, payload, parent, rule, minimum_image, PLAIN)
+
+
+@ti.kernel
+def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, radius: float,
+                          box: float, rule: ti.template(), boundary: ti.template(), start: ti.types.ndarray(),
+                          run_end: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
+                          sums: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
+    """:func:`_neighbour_sums` for a state whose metrics are taken: the same sums, the count 1 + n_i for every rule
+    (the neighbour counts), and the components of the R-graph in ``parent`` (stripes of layers, see
+    tflock.lane_graph; LaneComponents.finish completes them)."""
+    ti.loop_config(block_dim=1)  # a stripe a task
+    for j in range(n_stripes):
+        r2 = radius * radius
+        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for b in range(b_lo, b_hi):
+            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+            wraps = run_wraps(row, x0, x1, nc, boundary)
+            for block in range((a1 - a0 + LANES - 1) // LANES):
+                i0 = a0 + block * LANES
+                i1 = ti.min(i0 + LANES, a1)
+                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+                th = lanes(payload, 2, i0, a1 - 1, LANES)
+                acc_a = ti.Vector([0.0] * LANES)
+                acc_b = ti.Vector([0.0] * LANES)
+                count = ti.Vector([0.0] * LANES)
+                label = ti.Vector([NO_LABEL] * LANES)
+                other = ti.Vector([NO_LABEL] * LANES)
+                inmask = ti.Vector([0] * LANES)
+                for r in range(3):
+                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                    for h in range(2):
+                        begin = ti.select(h == 0, b0, b1)
+                        end = ti.select(h == 0, e0, e1)
+                        if wraps:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, True)
+                        else:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, False)
+                for k in ti.static(range(LANES)):
+                    if i0 + k < a1:
+                        sums[0, i0 + k] = acc_a[k]
+                        sums[1, i0 + k] = acc_b[k]
+                        sums[2, i0 + k] = count[k]
+                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                    bit = recheck & (-recheck)
+                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                    p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
+                    root = -1
+                    for r in range(3):
+                        b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                        for h in range(2):
+                            first = ti.max(s_lo, ti.select(h == 0, b0, b1))
+                            for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
+                                d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
+                                if d.norm_sqr() <= r2:
+                                    root = join_candidate(root, k, parent, size)
+                    roots[q] = root
+                    recheck ^= bit
+                settle_block(i0, i1 - i0, roots, inmask, parent, size)
+
+
 @ti.func
 def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
                   rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
@@ -433,6 +561,9 @@ class Vicsek(GridModel):
     """
 
     name = "vicsek"
+    #: (step, grid build) whose neighbour sums metrics() already computed for the next step (a tuple, which
+    #: checkpoint() leaves out)
+    _summed: tuple[int, int] | None = None
 
     @classmethod
     def can_batch(cls, params: VicsekParams) -> bool:
@@ -487,7 +618,9 @@ class Vicsek(GridModel):
         m = n if self.lane_wise else 1
         self.sums = ti.ndarray(ftype, (3, m))
         self.trig = ti.ndarray(ftype, (2, m))  # cos and sin of theta, element by element
-        self.graph = NeighbourGraph(self.grid)
+        # components: found by the lane-wise pass itself (lane_graph), else by the graph kernels of tflock.metrics
+        self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise and replicas == 1 else None
+        self.graph = None if self.components is not None else NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
@@ -560,9 +693,10 @@ class Vicsek(GridModel):
     def _lane_wise_step(self, inv_g: float) -> None:
         p, grid = self.params, self.grid
         g, rule, boundary = grid.geometry, RULES[p.rule], boundary_code(p.boundary)
-        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
-        _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(),
-                        grid.pos_sorted, self.payload, self.sums)
+        if self._summed != (self.step_index, grid.builds):  # not yet summed by metrics() for this state
+            _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+            _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start,
+                            grid.runs(), grid.pos_sorted, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
                 inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, grid.id_sorted, grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
@@ -574,9 +708,14 @@ class Vicsek(GridModel):
         p = self.params
         self._ensure_grid()
         leader_heading = float(self._rows(self._leader_id, 1)[0, 2]) if p.leader.enabled else 0.0
-        polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
-        out = {"polarization": polarization, "mean_heading": mean_heading}
-        out.update(self.graph.compute(p.radius, p.box))
+        if self.components is not None:
+            out = self._lane_wise_metrics()
+            if p.leader.enabled:
+                leader_gap = heading_order(self.theta, p.n, leader_heading)[2]
+        else:
+            polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
+            out = {"polarization": polarization, "mean_heading": mean_heading}
+            out.update(self.graph.compute(p.radius, p.box))
         pairs = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2, self.seed,
                                 self.step_index)
         out.update(zip(self._pair_names, pairs, strict=True))
@@ -584,6 +723,24 @@ class Vicsek(GridModel):
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
         return {name: out[name] for name in self.metric_descriptions}
+
+    def _lane_wise_metrics(self) -> dict[str, float]:
+        """Order parameter and R-graph metrics from the next step's own neighbour pass, run now (its sums are kept
+        for that step): the headings' cos and sin in cell order, each agent's neighbour count and the clusters."""
+        p, grid = self.params, self.grid
+        g, boundary = grid.geometry, boundary_code(p.boundary)
+        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, RULES[p.rule], boundary,
+                              grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
+                              self.components.parent, self.components.size)
+        self._summed = (self.step_index, grid.builds)
+        clusters, largest = self.components.finish(p.radius, p.box, boundary)
+        payload, sums = host_view(self.payload), host_view(self.sums)  # lane-wise: on the CPU
+        c, s = payload[0].sum(dtype=np.float64), payload[1].sum(dtype=np.float64)
+        mean_neighbors, max_neighbors = degree_stats(sums[2])
+        return {"polarization": math.hypot(c, s) / p.n, "mean_heading": math.atan2(s, c) % TWO_PI,
+                "clusters": float(clusters), "largest_cluster": largest / p.n, "mean_neighbors": mean_neighbors,
+                "max_neighbors": max_neighbors}
 
     def replica_metrics(self) -> dict[str, np.ndarray]:
         """:meth:`metrics` of each replica of a batch: one array of length ``replicas`` per metric."""

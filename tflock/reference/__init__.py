@@ -180,6 +180,23 @@ def pairwise_errors(x: np.ndarray, theta: np.ndarray, boundary: str, box: float)
     return float(dist.mean()), float(angle.mean())
 
 
+def pairwise_errors_sampled(x: np.ndarray, theta: np.ndarray, boundary: str, box: float, seed: int, step: int,
+                            samples: int) -> tuple[float, float]:
+    """:func:`pairwise_errors` estimated from `samples` ordered pairs of array elements (i, j), i != j, drawn
+    uniformly from (seed, step, sample) as tflock.metrics does above its exact range."""
+    n = len(theta)
+    m = np.arange(samples)
+    i = randint_np(hash_np(seed, step, m, Stream.PAIR_I), n)
+    j = randint_np(hash_np(seed, step, m, Stream.PAIR_J), n - 1)
+    j = j + (j >= i)
+    x64 = x.astype(np.float64)
+    d = x64[i] - x64[j]
+    if boundary == "periodic":
+        d -= box * np.round(d / box)
+    th = theta.astype(np.float64)
+    return float(np.sqrt((d * d).sum(axis=1)).mean()), float(np.abs(wrap_pi(th[i] - th[j])).mean())
+
+
 def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams, previous_theta: np.ndarray,
                    updated: np.ndarray) -> dict[str, float]:
     """Every metric the Vicsek model reports, for state (x, theta) reached from headings `previous_theta` with
