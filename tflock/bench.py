@@ -4,10 +4,11 @@ Each case (model, N, start state, threads, arch, precision, logging on or off) r
 engine settings can differ between cases and peak memory is the case's own. A case builds the model's default
 config at N agents with the default density kept (the box side scales as N^(1/dim)), steps it to the wanted
 state, then times single steps. The first step (JIT compile) is reported apart. Per case: ms per step (median,
-min, max over repeats), agent-steps per second, a breakdown (neighbour-grid build, interactions = the rest of the
-step, one metrics pass, one logged frame), with logging a logging run's time per step against the plain step's
-(:func:`_plain_and_logged_steps`), the mean neighbour count (the workload: a step's cost follows it), peak
-resident memory and the model's device bytes per agent.
+min, max over repeats), agent-steps per second, what a run costs per step as ``tflock sim`` runs (the step, the
+metrics at the model's default cadence, the non-finite guard; with logging a frame every step too) against the
+plain step (:func:`_plain_and_run_steps`), a breakdown (neighbour-grid build, interactions = the rest of the
+step, one metrics pass, one logged frame), the mean neighbour count (the workload: a step's cost follows it),
+peak resident memory and the model's device bytes per agent.
 
 Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
 as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
@@ -42,7 +43,7 @@ PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less
 NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 #: expected time of the cKDTree + sparse-matrix peer per agent-neighbour pair (0.2-0.35 us measured here at 1e6)
 CKDTREE_S_PER_PAIR = 4e-7
-LOG_TURNS = 8  # turns of plain steps and a logging run per logging case (see _plain_and_logged_steps)
+LOG_TURNS = 8  # turns of plain steps and runs per case (see _plain_and_run_steps)
 METRICS_NEVER = 10**9  # log.metrics_every of a case: steps logged for timing take no metrics pass (timed apart)
 
 
@@ -82,9 +83,9 @@ class BenchResult:
     interactions_ms: float | None = None
     metrics_ms: float = 0.0
     logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
-    logged_ms_median: float | None = None  # a logging run's ms per step (a frame every step), the same steps
-    # median over turns of (a logging run's ms per step / its turn's plain ms per step) - 1
-    logging_overhead: float | None = None
+    run_ms_median: float = 0.0  # a run's ms per step as tflock sim runs (metrics, guard; with log the frames)
+    run_overhead: float = 0.0  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
+    logging_overhead: float | None = None  # with log: median over turns of (run / the same run without frames) - 1
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
     # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
@@ -246,40 +247,67 @@ def _written(sim: Any) -> None:
     sim.recorder.flush()
 
 
-def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float, float]:
-    """The plain steps' ms (grid build included), a logging run's ms per step (a frame every step: the step on the
-    grid its last frame built, the non-finite guard, this step's grid and frame, Rerun) and the logging overhead.
+@dataclass
+class Turns:
+    """What :func:`_plain_and_run_steps` measured (ms per step)."""
 
-    ``LOG_TURNS`` turns, each `repeats` plain steps and a logging run of as many steps, all from the case's state
-    (every turn times the same steps: the workload stays the state's). A logging run is timed whole, until Rerun's
-    background threads have encoded and written its last frame; the runs' median is returned. The overhead is the
-    median over turns of a logging run's time against its own turn's plain steps, which cancels the drift of a
-    shared machine between turns (at 1e6 here plain steps drift between 30 and 50 ms within minutes). Timing single
-    logged steps between plain ones hid part of the cost: the background work of one frame then overlapped the
-    next plain step, which looked slower and the logging cheaper than in a run (at 1e6: plain 53-64 ms against
-    42-50 in a row, +9-16 % against +30-60 % for a logging run)."""
+    plain: list[float]  # every plain step: the model's step alone (grid build included)
+    run: float  # median over turns of a run's ms per step, as tflock sim runs (with --log: frames too)
+    run_overhead: float  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
+    logging_overhead: float | None = None  # with --log: median over turns of (run / its run without frames) - 1
+
+
+def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) -> Turns:
+    """Plain steps against runs of as many steps as ``tflock sim`` runs them: ``Simulation.step`` with metrics
+    every `metrics_every` steps (the model's default) and the non-finite guard, and with `log` a frame every step
+    (the frame, its edges, Rerun's encoding and writing).
+
+    ``LOG_TURNS`` turns, each `repeats` plain steps, a run without frames and, with `log`, a logged run, all from
+    the case's state (every turn times the same steps: the workload stays the state's). A run is timed whole, until
+    Rerun's background threads have written its last frame (timing single logged steps between plain ones hides
+    the background work of a frame, which then overlaps the next plain step). Overheads are medians over turns of a
+    run against its own turn's plain steps (or a logged run against its turn's run), which cancels the drift of a
+    shared machine between turns."""
     import taichi as ti
 
-    model, plain, runs, ratios = sim.model, [], [], []
+    model, log_config = sim.model, sim.config.log
     start = (model.checkpoint(), model.step_index)
+    plain: list[float] = []
+    runs, run_ratios, log_ratios = [], [], []
+
+    def timed_run(frames: bool) -> float:
+        model.restore(*start)
+        if frames:
+            model.build_neighbours()  # as the frame of the step before would have
+        ti.sync()
+        log_config.every = 1 if frames else METRICS_NEVER
+        log_config.metrics_every = metrics_every
+        try:
+            return _timed(lambda: sim.step(repeats), lambda: _written(sim)) / repeats
+        finally:
+            log_config.metrics_every = METRICS_NEVER
+
     for _ in range(LOG_TURNS):
         model.restore(*start)
         turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(repeats)]
-        model.restore(*start)
-        model.build_neighbours()  # as the frame of the step before would have
-        ti.sync()
-        runs.append(_timed(lambda: sim.step(repeats), lambda: _written(sim)) / repeats)
-        ratios.append(runs[-1] / statistics.fmean(turn))
         plain += turn
-    return plain, statistics.median(runs), statistics.median(ratios) - 1.0
+        bare = timed_run(frames=False)
+        run = timed_run(frames=True) if log else bare
+        runs.append(run)
+        run_ratios.append(run / statistics.fmean(turn))
+        log_ratios.append(run / bare)
+    return Turns(plain, statistics.median(runs), statistics.median(run_ratios) - 1.0,
+                 statistics.median(log_ratios) - 1.0 if log else None)
 
 
 def run_case(case: BenchCase) -> BenchResult:
     """Measure one case in this process (the engine is initialised with the case's settings)."""
     import taichi as ti
 
+    from tflock.config import load_config
     from tflock.simulation import Simulation
 
+    default_metrics_every = load_config(model=case.model).log.metrics_every
     result = BenchResult(case=case)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -293,10 +321,10 @@ def run_case(case: BenchCase) -> BenchResult:
         if case.state == "developed":
             model.advance(case.develop_steps)
             ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
-        if case.log:
-            steps, result.logged_ms_median, result.logging_overhead = _plain_and_logged_steps(sim, case.repeats)
-        else:
-            steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
+        turns = _plain_and_run_steps(sim, case.repeats, default_metrics_every, case.log)
+        steps = turns.plain
+        result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
+        result.logging_overhead = turns.logging_overhead
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)
