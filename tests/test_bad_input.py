@@ -129,6 +129,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     checkpoint_file(root / "badtoml.npz", config_toml="model = [[[")
     checkpoint_file(root / "badconfig.npz", config_toml='model = "vicsek"\n[params]\nn = -5\n')
     checkpoint_file(root / "mismatch.npz", config_toml=SMALL_TOML, **{"model__pos": np.zeros((2, 7))})
+    checkpoint_file(root / "at3.npz", config_toml=SMALL_TOML)  # a run at step 3
     whole = (root / "mismatch.npz").read_bytes()
     (root / "truncated.npz").write_bytes(whole[: len(whole) // 2])
     with open(root / "array.npz", "wb") as file:
@@ -273,9 +274,13 @@ MODEL_PARAMS = [
 ]
 
 SIM_OPTIONS = [
-    (["--steps", "-1"], ["steps", "must be >= 0", "-1"]),
+    (["--steps", "-1"], ["steps", "must be between 0 and 2147483647", "-1"]),
     (["--steps", "abc"], ["--steps", "valid integer", "sim --help"]),
     (["--steps", "1.5"], ["--steps", "valid integer"]),
+    (["--steps", str(2**31)], ["steps", "between 0 and 2147483647", str(2**31)]),  # the kernels' 32-bit counter
+    (["--steps", str(2**62)], ["steps", "between 0 and 2147483647", str(2**62)]),
+    (["--steps", str(2**63)], ["steps", "between 0 and 2147483647", str(2**63)]),
+    (["--set", "steps=1e30"], ["steps", "between 0 and 2147483647"]),
     (["--steps"], ["--steps", "requires an argument"]),
     (["--seed", "-1"], ["seed", "between 0 and 4294967295", "-1"]),
     (["--seed", "4294967296"], ["seed", "between 0 and 4294967295"]),
@@ -338,7 +343,7 @@ CONFIG_FILES = [
     ("model_unknown.toml", ["model", "must be one of", "boids"]),
     ("params_int.toml", ["params", "expected a table"]),
     ("engine_string.toml", ["engine", "expected a table", "'cpu'"]),
-    ("steps_negative.toml", ["steps", ">= 0", "-5"]),
+    ("steps_negative.toml", ["steps", "between 0 and 2147483647", "-5"]),
     ("huge_n.toml", ["params.n", "<= 2147483647"]),
     ("alpha_nan.toml", ["params.alpha", "nan"]),
     ("alpha_neginf.toml", ["params.alpha", "-inf"]),
@@ -364,6 +369,8 @@ RESUMES = [
     (["--resume", "notes.txt", "--config", "empty.toml"], ["--resume"]),
     (["--resume", "notes.txt", "--seed", "3"], ["--resume"]),
     (["--resume", "notes.txt", "--set", "params.n=5"], ["--resume", "only --steps"]),
+    (["--resume", "at3.npz", "--steps", "3"], ["--steps", "checkpoint is at step 3", "nothing to run", "> 3"]),
+    (["--resume", "at3.npz", "--steps", "1", "--out", "r.rrd"], ["--steps", "would end at step 1", "nothing to run"]),
 ]
 
 OUTPUTS = [

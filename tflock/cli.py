@@ -103,8 +103,12 @@ def sim(
         if resume is not None:
             from tflock.simulation import read_checkpoint
 
-            saved = tomllib.loads(str(read_checkpoint(resume, arrays=False)["config_toml"]))
-            cfg = load_config(saved, overrides=overrides)
+            header = read_checkpoint(resume, arrays=False)
+            cfg = load_config(tomllib.loads(str(header["config_toml"])), overrides=overrides)
+            at = int(header["step"])
+            if cfg.steps <= at:
+                fail(f"--steps: the checkpoint is at step {at} and the run would end at step {cfg.steps}: nothing "
+                     f"to run; give --steps > {at} (the total, counted from step 0)")
         else:
             cfg = load_config(config, model=model, overrides=overrides)
     except ConfigError as e:
