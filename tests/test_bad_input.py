@@ -687,7 +687,13 @@ def run_entry_point(*args: str, cwd: Path, env: dict[str, str] | None = None) ->
     ["sim", "--out", "afile/x.rrd"],
     ["sim", "--resume", "fake.npz"],
     ["inspect", "garbage.rrd"],
-], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect"])
+    # beyond the float range of f32: the start state is refused, and NumPy's overflow warnings are not printed
+    ["sim", "--model", "vicsek", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "adaptive", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "potential", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "formation", "--set", "params.world=1e39", "--set", "params.n=10", "--no-log"],
+], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect", "f32-box-vicsek", "f32-box-adaptive",
+        "f32-box-potential", "f32-world-formation"])
 def test_entry_point_prints_one_line(workdir: Path, args: list[str]) -> None:
     before = listing(workdir)
     assert_entry_point_refuses(run_entry_point(*args, cwd=workdir))

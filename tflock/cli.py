@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 import time
+import warnings
 from importlib import import_module
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -36,7 +37,9 @@ class _OneLineUsageErrors(TyperGroup):
         if not standalone_mode:
             return super().main(*args, standalone_mode=False, **kwargs)
         try:
-            code = super().main(*args, standalone_mode=False, **kwargs)
+            with warnings.catch_warnings():
+                warnings.showwarning = _warning_line
+                code = super().main(*args, standalone_mode=False, **kwargs)
         except getattr(_click_errors, "NoArgsIsHelpError", ()) as e:  # the help text is printed already
             sys.exit(e.exit_code)
         except _click_errors.ClickException as e:
@@ -61,6 +64,17 @@ err = Console(stderr=True)
 def _error_line(message: str) -> None:
     """``error: <message>`` on one line, whatever the message holds (newlines, markup brackets, emoji codes)."""
     err.print(f"[bold red]error:[/] {escape(' '.join(message.split()))}", highlight=False, soft_wrap=True, emoji=False)
+
+
+def _warning_line(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+                  line: str | None = None) -> None:
+    """A Python warning as one ``warning: ...`` line on stderr: tflock's own (:class:`tflock.advice.TflockWarning`)
+    as their message, any other with its category and source."""
+    from tflock.advice import TflockWarning
+
+    text = str(message) if issubclass(category, TflockWarning) else (
+        f"{category.__name__}: {message} ({Path(filename).name}:{lineno})")
+    err.print(f"[yellow]warning:[/] {escape(' '.join(text.split()))}", highlight=False, soft_wrap=True, emoji=False)
 
 
 def fail(message: str) -> NoReturn:

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from tflock.advice import warn_mistakes
 from tflock.config import (
     Config,
     ConfigError,
@@ -145,7 +146,8 @@ class Simulation:
             if path is not None:
                 check_writable(Path(path), what)
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
-        self.model = model_class(config.model)(config.params, config.seed, self.engine)
+        with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
+            self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self.recorder = None
@@ -154,7 +156,8 @@ class Simulation:
         self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
         self.checkpoint_every = checkpoint_every
         if saved is not None:
-            self._restore(saved)
+            with np.errstate(over="ignore", invalid="ignore"):
+                self._restore(saved)
         self._refuse_non_finite_start()
         if record_path is not None or spawn or connect:
             self._open_recorder(record_path, spawn, connect)
@@ -162,6 +165,7 @@ class Simulation:
             self._observe(force=True)
         self._checked = self.model.step_index  # the last step whose state passed the guard (or the start)
         self._keep_good()
+        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
 
     @property
     def step_index(self) -> int:
@@ -171,10 +175,11 @@ class Simulation:
         from tflock.record import Recorder
 
         table = path.with_suffix(".metrics.csv") if path is not None else None
-        self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
-                                 world=self.model.world(), metrics=self.model.metric_descriptions,
-                                 path=path, spawn=spawn, connect=connect, metrics_table=table,
-                                 recording_id=self.recording_id)
+        with np.errstate(over="ignore"):  # a box beyond the float32 range of the drawing: its outline is at inf
+            self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
+                                     world=self.model.world(), metrics=self.model.metric_descriptions,
+                                     path=path, spawn=spawn, connect=connect, metrics_table=table,
+                                     recording_id=self.recording_id)
         self.files = [p for p in (path, table) if p is not None]
 
     def _metrics_due(self, t: int) -> bool:
@@ -185,6 +190,10 @@ class Simulation:
 
     def _observe(self, force: bool = False) -> None:
         """Metrics and frame of the current step, at their cadences (or now, when forced)."""
+        with np.errstate(over="ignore"):  # a state that passed the guard: a square or a float32 drawing past the
+            self._observe_now(force)      # float range is inf, as it should be, without a NumPy warning
+
+    def _observe_now(self, force: bool) -> None:
         t = self.model.step_index
         if force or self._metrics_due(t):
             values = self.model.metrics()
