@@ -2,8 +2,9 @@
 
 Metrics are computed at step 0 and every ``log.metrics_every`` steps (and at the last step), frames every
 ``log.every`` steps; both go to the recorder when one is attached. Before anything is kept or written for a step
-(metrics, a frame, a checkpoint), the non-finite guard checks the state: a nan or infinite position, heading or
-velocity stops the run with :class:`NumericalFaultError` (see there). A :class:`Simulation` is also the Python API:
+(metrics, a frame, a checkpoint), the guard checks the state: a nan or infinite position, heading or velocity, or
+a Lyapunov function risen beyond integration error (:mod:`tflock.stability`), stops the run with
+:class:`NumericalFaultError` (see there). A :class:`Simulation` is also the Python API:
 
     sim = Simulation("configs/vicsek.toml", params={"n": 5000}, steps=200)
     sim.run()
@@ -35,8 +36,10 @@ from tflock.config import (
 )
 from tflock.engine import EngineInfo, init_engine
 from tflock.models import model_class
+from tflock.models.base import Lyapunov
 from tflock.preflight import check_memory, check_writable
 from tflock.rng import Stream, hash_np
+from tflock.stability import cheap_test, lyapunov_test
 
 #: the guard keeps a host copy of a good state when the time since the last copy is this many times what the copy
 #: took: copying costs about 0.5 % of the run, and a replay after a fault covers only the steps since the copy
@@ -44,15 +47,18 @@ GOOD_COPY_RATIO = 200
 
 
 class NumericalFaultError(RuntimeError):
-    """A non-finite position, heading or velocity stopped the run (the message is one line).
+    """A non-finite position, heading or velocity, or an unstable integration (:mod:`tflock.stability`), stopped
+    the run (the message is one line).
 
-    The run is replayed from the last kept good state, checking every step, to find the first bad ``step`` and
-    the smallest bad ``agent`` id; the simulation is left at the last good state (step - 1), whose checkpoint was
+    The run is replayed from the last kept good state, checking every step, to find the first bad ``step`` and,
+    for a non-finite state, the smallest bad ``agent`` id (for an unstable integration ``agent`` is None and
+    ``quantity`` is "integration"); the simulation is left at the last good state (step - 1), whose checkpoint was
     written to ``checkpoint`` (None if it could not be written), and its recording is closed: nothing is logged
-    for steps after the last one that passed the guard.
+    for steps after the last one that passed the guard (the Lyapunov test runs at metrics steps only, so frames
+    between two metrics steps passed the other tests alone).
     """
 
-    def __init__(self, message: str, *, model: str, step: int, agent: int, quantity: str,
+    def __init__(self, message: str, *, model: str, step: int, agent: int | None, quantity: str,
                  checkpoint: Path | None) -> None:
         super().__init__(message)
         self.model, self.step, self.agent, self.quantity, self.checkpoint = model, step, agent, quantity, checkpoint
@@ -164,6 +170,7 @@ class Simulation:
         if saved is None:
             self._observe(force=True)
         self._checked = self.model.step_index  # the last step whose state passed the guard (or the start)
+        self._lyapunov_start = self._start_lyapunov(saved)
         self._keep_good()
         warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
 
@@ -213,8 +220,9 @@ class Simulation:
             t = self.model.step_index
             last = t == self.config.steps
             checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
-            if last or checkpoint or self._metrics_due(t) or self._frame_due(t):
-                self._guard()
+            full = last or checkpoint or self._metrics_due(t)  # where the stability guard's Lyapunov test runs
+            if full or self._frame_due(t):
+                self._guard(full)
             self._observe(force=last)
             if checkpoint:
                 self.save_checkpoint(self.checkpoint_path)
@@ -236,6 +244,13 @@ class Simulation:
             f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
             model=self.config.model, step=t, agent=agent, quantity=quantity, checkpoint=None)
 
+    def _start_lyapunov(self, saved: Mapping[str, Any] | None) -> Lyapunov | None:
+        """The Lyapunov function at step 0, the stability guard's reference: now, or as a checkpoint kept it."""
+        if saved is not None and "lyapunov_start" in saved:
+            name, kinetic, potential = (str(v) for v in saved["lyapunov_start"])
+            return Lyapunov(name, float(kinetic), float(potential))
+        return self.model.lyapunov()
+
     def _keep_good(self) -> None:
         """Keep a host copy of the current (good) state to replay from after a fault."""
         t0 = time.perf_counter()
@@ -243,17 +258,31 @@ class Simulation:
         self._good_at = time.perf_counter()
         self._good_cost = self._good_at - t0
 
-    def _guard(self) -> None:
-        """Check the state before anything of this step is kept: stop at a non-finite value, else now and then
-        keep a copy of this good state."""
-        found = self.model.first_non_finite()
-        if found is not None:
-            self._fault(found)
+    def _guard(self, full: bool = True) -> None:
+        """Check the state before anything of this step is kept: stop at a non-finite value or an unstable
+        integration (its Lyapunov test where `full`), else now and then keep a copy of this good state."""
+        problem = self._problem(full)
+        if problem is not None:
+            self._fault(problem)
         self._checked = self.model.step_index
         if time.perf_counter() - self._good_at >= GOOD_COPY_RATIO * self._good_cost:
             self._keep_good()
 
-    def _fault(self, seen: tuple[int, str]) -> None:
+    def _problem(self, full: bool = True) -> tuple[int | None, str, str] | None:
+        """What is wrong with the current state, ``(agent, quantity, what)``, or None: a non-finite position,
+        heading or velocity (the smallest bad agent), else an integration that left its stable range
+        (:mod:`tflock.stability`: the displacement test, and where `full` the Lyapunov test; agent None)."""
+        found = self.model.first_non_finite()
+        if found is not None:
+            agent, quantity = found
+            return agent, quantity, f"agent {agent} has a non-finite {quantity}"
+        unstable = cheap_test(self.model) or (lyapunov_test(self._lyapunov_start, self.model) if full else None)
+        if unstable is None:
+            return None
+        dt = getattr(self.config.params, "dt", None)
+        return None, "integration", unstable + ("" if dt is None else f"; lower params.dt (= {dt:g})")
+
+    def _fault(self, seen: tuple[int | None, str, str]) -> None:
         """Replay from the kept good state, checking every step after the last one that passed the guard, to the
         first bad step; save the state before it, close the recording and raise NumericalFaultError. `seen` is
         what the guard found at the current step."""
@@ -265,8 +294,8 @@ class Simulation:
         while found is None and self.model.step_index < detected:
             good = self.model.checkpoint()
             self.model.advance(1)
-            found = self.model.first_non_finite()
-        agent, quantity = found or seen  # steps are deterministic: the replay finds it again, at or before
+            found = self._problem(full=True)
+        agent, quantity, what = found or seen  # steps are deterministic: the replay finds it again, at or before
         bad = self.model.step_index
         self.model.restore(good, bad - 1)
         path = self.checkpoint_path or (
@@ -278,7 +307,7 @@ class Simulation:
         except OSError as e:
             saved, where = None, f"the last good state (step {bad - 1}) could not be saved to {path}: {e.strerror or e}"
         self.close()
-        message = (f"numerical fault in {self.config.model} at step {bad}: agent {agent} has a non-finite {quantity}; "
+        message = (f"numerical fault in {self.config.model} at step {bad}: {what}; "
                    f"the run stopped (nothing after step {self._checked} is recorded) and {where}")
         raise NumericalFaultError(message, model=self.config.model, step=bad, agent=agent, quantity=quantity,
                                   checkpoint=saved)
@@ -310,6 +339,8 @@ class Simulation:
         table = self.metrics()
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
         arrays.update({f"metrics__{k}": v for k, v in table.items()})
+        if self._lyapunov_start is not None:
+            arrays["lyapunov_start"] = np.array([str(v) for v in self._lyapunov_start])
         tmp = path.with_name(path.name + ".tmp")
         with open(tmp, "wb") as f:
             np.savez(f, **arrays, step=np.int64(self.model.step_index),

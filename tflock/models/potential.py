@@ -35,7 +35,7 @@ import taichi as ti
 from tflock.engine import EngineInfo
 from tflock.frame import Frame, WorldSpec, color_table, look_up
 from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
-from tflock.models.base import GridModel
+from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
 from tflock.neighbors import (
@@ -52,6 +52,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.taichi_host import host_view
 
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
@@ -378,9 +379,13 @@ class Potential(GridModel):
         self.vel.from_numpy(np.ascontiguousarray(np.asarray(state["v"]).T, dtype=real))
         self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
         self.step_index = step
-        self._grid_step = -1
+        self.invalidate()
         self._lambda2_step = -1  # step of the last lambda_2 (plain numbers: checkpoints keep them)
         self._lambda2_value = 0.0
+
+    def invalidate(self) -> None:
+        super().invalidate()
+        self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -448,16 +453,47 @@ class Potential(GridModel):
         _grid_pairs(p.n, p.radius**2, d2, v_cut, self.dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start,
                     grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
 
+    def _pair_energies(self) -> None:
+        """Each agent's half of its pair potentials in ``energy`` (switching: also ``valency`` and ``nearest``),
+        once per step: the stability guard and the metrics share them."""
+        if self._pairs_step == (self.step_index,):
+            return
+        if self.switching:
+            self._ensure_grid()
+            self._grid_pairs(self.valency, self.energy)
+        else:
+            p = self.params
+            _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
+        self._pairs_step = (self.step_index,)
+
+    def lyapunov(self) -> Lyapunov:
+        """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic
+        energy 1/2 sum |v_i|^2 and the pair potentials. Both must not increase (eqs. 8 and 12) but by the
+        integration error."""
+        self._pair_energies()
+        v, energy = host_view(self.vel), host_view(self.energy)
+        v = self.vel.to_numpy() if v is None else v
+        energy = self.energy.to_numpy() if energy is None else energy
+        kinetic = 0.5 * float(np.square(v, dtype=np.float64).sum())
+        return Lyapunov("Q" if self.switching else "W", kinetic, float(energy.sum(dtype=np.float64)))
+
+    def step_spread(self) -> tuple[float, float]:
+        """dt max_a (max_i v_ia - min_i v_ia), at most the largest relative displacement of two agents in a step,
+        and the desired distance d, the length over which the potential changes (Definition 2)."""
+        v = host_view(self.vel)
+        v = self.vel.to_numpy() if v is None else v
+        spread = float((v.max(axis=1) - v.min(axis=1)).max())
+        return self.params.dt * spread, self.params.desired_distance
+
     def metrics(self) -> dict[str, float]:
         p = self.params
-        n, d2 = p.n, p.desired_distance**2
+        n = p.n
         self._ensure_grid()
+        self._pair_energies()
         if self.switching:
-            self._grid_pairs(self.valency, self.energy)
             graph = self.graph.compute(p.radius, p.box)
             components = graph["clusters"]
         else:
-            _csr_energy(n, d2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
             components = 1.0  # validated connected, and fixed
             if n > EXACT_PAIRS_MAX:
                 self._grid_pairs(self._grid_valency, self._grid_energy)
