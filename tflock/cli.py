@@ -99,6 +99,8 @@ def sim(
     checkpoint_every: Annotated[int, typer.Option(help="Write a checkpoint every K steps (0 = never).")] = 0,
     checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint file (default: beside the recording).")] = None,
     resume: Annotated[Path | None, typer.Option(help="Continue a run from its checkpoint (.npz).")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an earlier run's files at the output "
+                                            "paths (refused without it).")] = False,
 ) -> None:
     """Run a simulation: `tflock sim` runs the default Vicsek config and records it under recordings/."""
     t_start = time.perf_counter()
@@ -135,15 +137,12 @@ def sim(
     signal.signal(signal.SIGTERM, stop.handler)  # SLURM, timeout, docker stop: finish the file
     signal.signal(signal.SIGINT, stop.handler)  # also when started in the background
     from tflock.engine import EngineError
-    from tflock.simulation import NumericalFaultError, Simulation, default_recording_path
+    from tflock.simulation import NumericalFaultError, Simulation
 
-    if checkpoint_every and checkpoint is None:
-        base = out_path or (Path(cfg.log.out) if cfg.log.out else default_recording_path(cfg.model))
-        checkpoint = base.with_suffix(".checkpoint.npz")
     try:
         simulation = Simulation(cfg if resume is None else None, overrides=None if resume is None else overrides,
                                 resume=resume, record=record, spawn=spawn, connect=connect, checkpoint=checkpoint,
-                                checkpoint_every=checkpoint_every)
+                                checkpoint_every=checkpoint_every, overwrite=overwrite)
     except OSError as e:
         fail(e.strerror or str(e))
     except (ConfigError, EngineError, RuntimeError) as e:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import time
 import uuid
+import weakref
 import zipfile
 from collections.abc import Callable, Mapping
 from datetime import datetime
@@ -37,7 +38,8 @@ from tflock.config import (
 from tflock.engine import EngineInfo, init_engine
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
-from tflock.preflight import check_memory, check_writable
+from tflock.outputs import Outputs, claim, first_free
+from tflock.preflight import check_memory
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
 
@@ -115,16 +117,19 @@ class Simulation:
     ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer. ``checkpoint`` /
     ``checkpoint_every``: write :meth:`save_checkpoint` there every k steps (``checkpoint`` also receives the last
     good state after a :class:`NumericalFaultError`); ``resume``: continue from such a file (bit-identical to the
-    uninterrupted run; a recording goes to a new file with the same recording id). A config that needs more memory
-    than the machine has is a :class:`ConfigError`, and an output path that cannot be written an OSError, both
-    raised before anything is allocated or written.
+    uninterrupted run; a recording goes to a new file with the same recording id); ``checkpoint_every`` without
+    ``checkpoint`` writes ``<recording>.checkpoint.npz``. The run owns its outputs until :meth:`close`
+    (:mod:`tflock.outputs`): an output path another run holds, or that holds an earlier run's file (unless
+    ``overwrite``), is refused. A config that needs more memory than the machine has is a :class:`ConfigError`,
+    and an output path that cannot be written or is in use an OSError, all raised before anything is allocated
+    or written.
     """
 
     def __init__(self, config: str | Path | Mapping[str, Any] | Config | None = None, *,
                  model: str | None = None, overrides: list[str] | Mapping[str, Any] | None = None,
                  record: bool | str | Path = False, spawn: bool = False, connect: str | None = None,
                  resume: str | Path | None = None, checkpoint: str | Path | None = None,
-                 checkpoint_every: int = 0, **fields: Any) -> None:
+                 checkpoint_every: int = 0, overwrite: bool = False, **fields: Any) -> None:
         saved = None
         if resume is not None:  # the checkpoint carries the config
             saved = read_checkpoint(resume)
@@ -143,23 +148,62 @@ class Simulation:
             config = load_config(config, model=model, overrides=merged)
         self.config: Config = config
         record_path = None if not record else Path(record) if not isinstance(record, bool) else (
-            Path(config.log.out) if config.log.out else default_recording_path(config.model))
+            Path(config.log.out) if config.log.out else None)
         check_memory(config)
-        outputs = [(checkpoint, "checkpoint")]
-        if record_path is not None:
-            outputs += [(record_path, "recording"), (record_path.with_suffix(".metrics.csv"), "metrics table")]
-        for path, what in outputs:
-            if path is not None:
-                check_writable(Path(path), what)
+        self._outputs = Outputs()
+        weakref.finalize(self, self._outputs.release)  # a Simulation never closed lets go of its outputs at exit
+        self.recorder = None
+        try:
+            record_path, checkpoint = self._claim_outputs(
+                record_path, bool(record) and record_path is None, None if checkpoint is None else Path(checkpoint),
+                checkpoint_every, None if resume is None else Path(resume), overwrite)
+            self._start(saved, record_path, spawn, connect, checkpoint, checkpoint_every)
+        except BaseException:
+            self.close()
+            raise
+        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
+
+    def _claim_outputs(self, record_path: Path | None, default_name: bool, checkpoint: Path | None,
+                       checkpoint_every: int, resume: Path | None, overwrite: bool) -> tuple[Path | None, Path | None]:
+        """Check, lock and return the run's recording and checkpoint paths (:mod:`tflock.outputs`): a recording
+        named by tflock (`default_name`) takes the first free ``recordings/<model>-<time>[-k].rrd``; a checkpoint
+        every k steps without a path goes beside the recording (``.checkpoint.npz``)."""
+        if checkpoint is not None:
+            claim(checkpoint, "checkpoint", overwrite=overwrite, allowed=resume, into=self._outputs)
+
+        def attempt(recording: Path | None, base: Path | None) -> tuple[Path | None, Path | None]:
+            taken = Outputs()
+            try:
+                beside = None
+                if checkpoint is None and checkpoint_every and base is not None:
+                    beside = base.with_suffix(".checkpoint.npz")
+                    claim(beside, "checkpoint", overwrite=overwrite, allowed=resume, into=taken)
+                if recording is not None:
+                    claim(recording, "recording", [(recording.with_suffix(".metrics.csv"), "metrics table")],
+                          overwrite=overwrite, into=taken)
+            except BaseException:
+                taken.release()
+                raise
+            self._outputs.locks += taken.locks
+            return recording, checkpoint or beside
+
+        if default_name or (record_path is None and checkpoint is None and checkpoint_every):
+            return first_free(default_recording_path(self.config.model),
+                              lambda base: attempt(base if default_name else None, base))
+        return attempt(record_path, record_path)
+
+    def _start(self, saved: Mapping[str, Any] | None, record_path: Path | None, spawn: bool, connect: str | None,
+               checkpoint: Path | None, checkpoint_every: int) -> None:
+        """Build the model and the recorder, at the start or from a checkpoint (`saved`)."""
+        config = self.config
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
         with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
             self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
-        self.recorder = None
         self.files: list[Path] = []
         self.recording_id = uuid.uuid4().hex
-        self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
+        self.checkpoint_path = checkpoint
         self.checkpoint_every = checkpoint_every
         if saved is not None:
             with np.errstate(over="ignore", invalid="ignore"):
@@ -172,7 +216,6 @@ class Simulation:
         self._checked = self.model.step_index  # the last step whose state passed the guard (or the start)
         self._lyapunov_start = self._start_lyapunov(saved)
         self._keep_good()
-        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
 
     @property
     def step_index(self) -> int:
@@ -363,9 +406,12 @@ class Simulation:
         self.recording_id = str(checkpoint["recording_id"])
 
     def close(self) -> None:
-        """Finish the recording (idempotent)."""
-        if self.recorder is not None:
-            self.recorder.close()
+        """Finish the recording and let go of the run's outputs (idempotent)."""
+        try:
+            if self.recorder is not None:
+                self.recorder.close()
+        finally:
+            self._outputs.release()
 
     def __enter__(self) -> Simulation:
         return self
