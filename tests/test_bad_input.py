@@ -443,6 +443,13 @@ OTHER_COMMANDS = [
     (["inspect", "garbage.rrd"], ["cannot read", "garbage.rrd"]),
     (["inspect", "notes.txt"], ["notes.txt"]),
     (["inspect", "mismatch.npz"], ["mismatch.npz"]),
+    (["repair"], ["Missing argument", "repair --help"]),
+    (["repair", "missing.rrd"], ["recording not found", "missing.rrd"]),
+    (["repair", "out_dir.rrd"], ["out_dir.rrd is not a file"]),
+    (["repair", "empty.rrd"], ["empty.rrd is empty", "nothing to recover"]),
+    (["repair", "garbage.rrd"], ["garbage.rrd is not a Rerun recording"]),
+    (["repair", "notes.txt"], ["notes.txt is not a Rerun recording"]),
+    (["repair", "garbage.rrd", "--out", "x.txt"], ["--out", ".rrd", "x.txt"]),
     (["view"], ["Missing argument", "view --help"]),
     (["view", "missing.rrd"], ["recording not found", "missing.rrd"]),
     (["view", "out_dir.rrd"], ["recording not found", "out_dir.rrd"]),
@@ -687,12 +694,13 @@ def run_entry_point(*args: str, cwd: Path, env: dict[str, str] | None = None) ->
     ["sim", "--out", "afile/x.rrd"],
     ["sim", "--resume", "fake.npz"],
     ["inspect", "garbage.rrd"],
+    ["repair", "garbage.rrd"],
     # beyond the float range of f32: the start state is refused, and NumPy's overflow warnings are not printed
     ["sim", "--model", "vicsek", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
     ["sim", "--model", "adaptive", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
     ["sim", "--model", "potential", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
     ["sim", "--model", "formation", "--set", "params.world=1e39", "--set", "params.n=10", "--no-log"],
-], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect", "f32-box-vicsek", "f32-box-adaptive",
+], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect", "repair", "f32-box-vicsek", "f32-box-adaptive",
         "f32-box-potential", "f32-world-formation"])
 def test_entry_point_prints_one_line(workdir: Path, args: list[str]) -> None:
     before = listing(workdir)

@@ -285,7 +285,11 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
     try:
         summary = read_recording(path)
     except ValueError as e:
-        fail(str(e))
+        from tflock.repair import RRD_MAGIC
+
+        with open(path, "rb") as file:
+            cut = file.read(len(RRD_MAGIC)) == RRD_MAGIC  # a Rerun file whose end is cut: a killed run's
+        fail(str(e) + (f"; if its run was killed, `tflock repair {path}` recovers what it holds" if cut else ""))
     out.print(f"[bold]{path}[/]", highlight=False)
     out.print(f"model: {summary.model}")
     first = summary.steps[0] if summary.steps else None
@@ -297,6 +301,55 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
     out.print(table)
     out.print("config:")
     out.print(summary.config_toml, markup=False, highlight=False)
+
+
+@app.command()
+def repair(
+    path: Annotated[Path, typer.Argument(help="Recording (.rrd) of a killed run: no footer.")],
+    out_path: Annotated[Path | None, typer.Option("--out", "-o", help="Write the repaired file here instead of "
+                                                  "replacing PATH.")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an earlier file at --out.")] = False,
+) -> None:
+    """Make a killed run's recording complete (footer included) through Rerun's own reader and writer."""
+    from tflock.repair import RepairError, repair_recording
+
+    if out_path is not None and out_path.suffix != ".rrd":
+        fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
+    try:
+        result = repair_recording(path, out_path, overwrite=overwrite)
+    except RepairError as e:
+        fail(str(e))
+    except OSError as e:
+        fail(e.strerror or str(e))
+    summary = result.summary
+    held = "" if summary is None or summary.last_step is None else (
+        f": {summary.frames} frames (steps {summary.steps[0]} to {summary.last_step}), "
+        f"{summary.metric_rows} metric rows")
+    if not result.rewritten:
+        out.print(f"{result.path} is complete already (rerun rrd verify passes){held}", highlight=False,
+                  soft_wrap=True)
+        return
+    out.print(f"repaired {result.path} (rerun rrd verify passes){held}", highlight=False, soft_wrap=True)
+    table = path.with_suffix(".metrics.csv")
+    last = _last_table_step(table)
+    if last is not None and summary is not None:
+        out.print(f"its metrics table {table} has rows up to step {last} (the recording's last metrics may be a "
+                  "fraction of a second older)", highlight=False, soft_wrap=True)
+
+
+def _last_table_step(table: Path) -> int | None:
+    """The step of the last complete row of a metrics table, or None."""
+    try:
+        with open(table, "rb") as file:
+            file.seek(max(0, file.seek(0, 2) - 65536))
+            rows = file.read().decode("utf-8", "replace").split("\n")
+    except OSError:
+        return None
+    for row in reversed(rows[:-1]):  # the text after the last newline is a row cut short, or nothing
+        first = row.split(",", 1)[0]
+        if first.isdigit():
+            return int(first)
+    return None
 
 
 def _int_list(text: str, what: str) -> list[int]:
