@@ -560,9 +560,15 @@ def _beyond(kind: str, side: str, bound: float) -> st.SearchStrategy[Any]:
 
 @st.composite
 def bad_key_values(draw: st.DrawFn) -> tuple[str, str, Any]:
-    """A (model, key, value) that the key's schema must refuse: of the wrong type, non-finite, non-integral, out
-    of range or not among the allowed words."""
+    """A (model, key, value) that the key's schema must refuse (see :func:`bad_value`)."""
     model, key, field = draw(st.sampled_from(KEYS))
+    return model, key, draw(bad_value(key, field))
+
+
+@st.composite
+def bad_value(draw: st.DrawFn, key: str, field: Any) -> Any:
+    """A value of `key` that its schema must refuse: of the wrong type, non-finite, non-integral, out of range or
+    not among the allowed words."""
     kind = _kind(field)
     words = st.text(st.characters(codec="utf-8", exclude_categories=("Cs",)), max_size=12)
     wrong_type = st.one_of(words, st.lists(st.integers(), max_size=3))
@@ -584,7 +590,7 @@ def bad_key_values(draw: st.DrawFn) -> tuple[str, str, Any]:
         value = draw(st.one_of(words, st.integers(-10, 10), st.floats()).filter(lambda v: v not in allowed))
     else:  # strings: log.out must name a .rrd; potential's graph_file must be a string
         value = draw(st.one_of(st.integers(), st.booleans(), st.lists(st.integers(), max_size=2)))
-    return model, key, value
+    return value
 
 
 @GENERATED
