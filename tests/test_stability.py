@@ -75,3 +75,15 @@ def test_the_replay_finds_the_first_unstable_step(make_sim: Any, monkeypatch: py
         run.run()
     assert (fault.value.step, fault.value.agent, fault.value.quantity) == (52, None, "integration")
     assert run.step_index == 51 and run.metrics()["step"].tolist() == list(range(0, 50, 7))
+
+
+def test_the_kernel_numbers_of_gpu_arches_equal_numpys(make_sim: Any) -> None:
+    """GPU arches take the guard's velocity numbers from a kernel's block partials; they equal NumPy's."""
+    import numpy as np
+
+    run = make_sim(model="potential", params={"n": 5000, "box": 100.0}, steps=3)  # two blocks of 4096
+    run.run()
+    big, small, squares = run.model.kernel_velocity_stats()
+    v = run.model.vel.to_numpy()
+    assert np.array_equal(big, v.max(axis=1)) and np.array_equal(small, v.min(axis=1))
+    assert squares == pytest.approx(float(np.square(v, dtype=np.float64).sum()), rel=1e-6)
