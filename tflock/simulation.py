@@ -66,6 +66,17 @@ class NumericalFaultError(RuntimeError):
         self.model, self.step, self.agent, self.quantity, self.checkpoint = model, step, agent, quantity, checkpoint
 
 
+def non_finite_start(config: Config, step: int, agent: int, quantity: str, who: str = "") -> NumericalFaultError:
+    """The fault of a start state that is already non-finite (numbers beyond the range of the run's precision):
+    nothing runs or is written. `who` names the agent's replica in a batch of replicas."""
+    precision = config.engine.precision
+    largest = "3.4e38" if precision == "f32" else "1.8e308"
+    return NumericalFaultError(
+        f"numerical fault in {config.model} at step {step}: {who}agent {agent} has a non-finite {quantity} in the "
+        f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
+        model=config.model, step=step, agent=agent, quantity=quantity, checkpoint=None)
+
+
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
     if isinstance(value, Mapping):
         for key, item in value.items():
@@ -277,15 +288,8 @@ class Simulation:
         """A start state that is already non-finite (numbers beyond the float range) stops before anything is
         written."""
         found = self.model.first_non_finite()
-        if found is None:
-            return
-        agent, quantity = found
-        t, precision = self.model.step_index, self.config.engine.precision
-        largest = "3.4e38" if precision == "f32" else "1.8e308"
-        raise NumericalFaultError(
-            f"numerical fault in {self.config.model} at step {t}: agent {agent} has a non-finite {quantity} in the "
-            f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
-            model=self.config.model, step=t, agent=agent, quantity=quantity, checkpoint=None)
+        if found is not None:
+            raise non_finite_start(self.config, self.model.step_index, *found)
 
     def _start_lyapunov(self, saved: Mapping[str, Any] | None) -> Lyapunov | None:
         """The Lyapunov function at step 0, the stability guard's reference: now, or as a checkpoint kept it."""
