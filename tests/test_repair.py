@@ -42,11 +42,12 @@ def table_steps(path: Path) -> list[int]:
 
 
 def test_what_a_killed_run_leaves(killed: Path) -> None:
-    assert sorted(p.name for p in killed.iterdir()) == ["k.checkpoint.npz", "k.checkpoint.npz.lock", "k.metrics.csv",
-                                                         "k.rrd", "k.rrd.lock"]
+    names = {p.name for p in killed.iterdir()}
+    names.discard("k.checkpoint.npz.tmp")  # killed while writing a checkpoint: the previous one stays whole (below)
+    assert sorted(names) == ["k.checkpoint.npz", "k.checkpoint.npz.lock", "k.metrics.csv", "k.rrd", "k.rrd.lock"]
     assert not verify_recording(killed / "k.rrd")
     steps = table_steps(killed / "k.metrics.csv")
-    assert len(steps) > 40 and steps == list(range(len(steps)))  # every row, flushed as it was logged
+    assert len(steps) >= 40 and steps == list(range(len(steps)))  # every row (the fixture waited for 40), flushed
     at = int(read_checkpoint(killed / "k.checkpoint.npz", arrays=False)["step"])
     assert at % 5 == 0 and at <= steps[-1]
     summary = read_recording(killed / "k.rrd")  # readable without its footer
