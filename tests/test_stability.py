@@ -31,6 +31,26 @@ def test_an_absurd_time_step_stops_at_step_1_with_the_start_saved(cpu_engine: An
     assert "at step 1: the integration is unstable" in again  # deterministic: the same fault, resumed
 
 
+def test_runs_without_outputs_save_their_last_good_states_under_names_of_their_own(
+        make_sim: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two runs with no recording nor checkpoint path that fault in the same second (same default name) each keep
+    their last good state: the second takes the next free name, and no lock or temporary file stays."""
+    import tflock.simulation
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tflock.simulation, "default_recording_path", lambda model: Path("recordings") / "p.rrd")
+    faults = []
+    for seed in (1, 2):
+        with pytest.raises(NumericalFaultError) as fault:
+            make_sim(model="potential", params={"n": 20, "box": 5.0, "dt": 1e6}, steps=3, seed=seed).run()
+        faults.append(fault.value.checkpoint)
+    assert faults == [Path("recordings/p.lastgood.npz"), Path("recordings/p.lastgood-2.npz")]
+    assert sorted(p.name for p in (tmp_path / "recordings").iterdir()) == ["p.lastgood-2.npz", "p.lastgood.npz"]
+    seeds = [str(read_checkpoint(tmp_path / path, arrays=False)["config_toml"]).split("seed = ")[1].split()[0]
+             for path in faults]
+    assert seeds == ["1", "2"]
+
+
 @pytest.mark.parametrize(("params", "name"), [
     ({"n": 10, "box": 5.0}, "Q"),  # configs/papers/tanner-switching.toml
     ({"n": 10, "box": 5.0, "topology": "fixed", "graph": "random"}, "W"),  # configs/papers/tanner-fixed.toml

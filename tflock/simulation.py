@@ -349,6 +349,8 @@ class Simulation:
             self.recorder.path if self.recorder is not None and self.recorder.path is not None
             else default_recording_path(self.config.model)).with_suffix(".lastgood.npz")
         try:
+            if self.checkpoint_path is None and (self.recorder is None or self.recorder.path is None):
+                path = first_free(path, self._claim_lastgood)  # a name no other run writes or wrote
             saved: Path | None = self.save_checkpoint(path)
             where = f"the last good state (step {bad - 1}) is saved in {path}"
         except OSError as e:
@@ -358,6 +360,11 @@ class Simulation:
                    f"the run stopped (nothing after step {self._checked} is recorded) and {where}")
         raise NumericalFaultError(message, model=self.config.model, step=bad, agent=agent, quantity=quantity,
                                   checkpoint=saved)
+
+    def _claim_lastgood(self, path: Path) -> Path:
+        """Lock `path` for this run's last good state, refusing an earlier file there (:func:`tflock.outputs.claim`)."""
+        claim(path, "checkpoint", into=self._outputs)
+        return path
 
     def run(self, progress: Callable[[int], None] | None = None) -> None:
         """Step up to the configured number of steps."""
