@@ -63,6 +63,8 @@ __all__ = [
 ]
 
 DEFAULT_MODEL = "vicsek"
+#: the most steps a run can take: the kernels' step counter (and the random keys) are 32-bit integers
+MAX_STEPS = 2**31 - 1
 TWO_PI = 2.0 * math.pi
 _FLOAT_MAX = sys.float_info.max
 
@@ -260,7 +262,8 @@ class Config(BaseModel):
         le=2**32 - 1,
         description="seed of all random draws (initial state, noise), in [0, 2**32 - 1]",
     )
-    steps: Int = Field(200, ge=0, description="number of steps to simulate, >= 0")
+    steps: Int = Field(200, ge=0, le=MAX_STEPS, description="number of steps to simulate, in [0, 2**31 - 1] "
+                       "(the kernels count steps in 32-bit integers)")
     engine: EngineConfig = Field(default_factory=EngineConfig, description="where the kernels run")
     params: SerializeAsAny[BaseModel] = Field(
         default_factory=dict, validate_default=True, description="parameters of the model"

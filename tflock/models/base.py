@@ -2,6 +2,7 @@
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -10,6 +11,24 @@ from tflock.engine import EngineInfo
 from tflock.frame import Frame, WorldSpec
 from tflock.guard import Guarded, first_non_finite
 from tflock.neighbors import SubsetDrawing
+
+
+class Lyapunov(NamedTuple):
+    """A Lyapunov function of a model's continuous dynamics at the current state, which must not increase:
+    ``name`` (its metric's), its kinetic and potential parts."""
+
+    name: str
+    kinetic: float
+    potential: float
+
+    @property
+    def value(self) -> float:
+        return self.kinetic + self.potential
+
+    @property
+    def scale(self) -> float:
+        """The energy it holds, kinetic plus the magnitude of the potential part."""
+        return self.kinetic + abs(self.potential)
 
 
 class Model(ABC):
@@ -69,6 +88,17 @@ class Model(ABC):
         guarded = [Guarded(quantity, getattr(self, name)) for name, quantity in self.guarded_state.items()
                    if isinstance(getattr(self, name, None), ti.Ndarray)]
         return first_non_finite(guarded, self.ids)
+
+    def lyapunov(self) -> Lyapunov | None:
+        """The Lyapunov function of the model's equations at the current state, for models that have one (the
+        integrator-stability guard, :mod:`tflock.stability`, watches it); None for the others."""
+        return None
+
+    def step_spread(self) -> tuple[float, float] | None:
+        """For models with an integrator that can leave its stable range: how far apart two agents move in one
+        step at their current velocities, at least (dt times the largest spread of a velocity component), and the
+        length it must stay below (the stability guard's cheap test); None for the others."""
+        return None
 
     def checkpoint(self) -> dict[str, np.ndarray]:
         """Everything the model holds, exactly as held: its ndarrays (alone or in lists, e.g. double buffers,

@@ -26,6 +26,7 @@ local. Both must not increase (dW/dt = -v^T (L x I) v, eq. 8 and 12) beyond the 
 """
 
 
+import functools
 import math
 from collections.abc import Mapping
 
@@ -34,8 +35,8 @@ import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.frame import Frame, WorldSpec, color_table, look_up
-from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
-from tflock.models.base import GridModel
+from tflock.metrics import BLOCK, EXACT_PAIRS_MAX, NeighbourGraph, n_blocks, total
+from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
 from tflock.neighbors import (
@@ -52,6 +53,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.taichi_host import host_view
 
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
@@ -91,6 +93,32 @@ def _pair_acceleration(p, v, q, w, d2):
     dvec = q - p
     r2 = dvec.norm_sqr()
     return (w - v) + 2.0 * (r2 - d2) / (r2 * r2) * dvec
+
+
+@functools.lru_cache(maxsize=4)
+def _block_partials(shape: tuple[int, int], dtype) -> ti.Ndarray:
+    """Scratch for :func:`_velocity_blocks` (kept out of the model: checkpoints hold the model's own arrays)."""
+    return ti.ndarray(dtype, shape)
+
+
+@ti.kernel
+def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), partial: ti.types.ndarray()):
+    """For each block of BLOCK agents: every velocity component's max (partial[b, a]) and min (partial[b, dim + a]),
+    and the sum of |v_i|^2 (partial[b, 2 dim]); the blocks are reduced in NumPy, the same whatever the threads."""
+    for blk in range(partial.shape[0]):
+        lo = blk * BLOCK
+        hi = ti.min(n, lo + BLOCK)
+        squares = 0.0
+        for a in ti.static(range(dim)):
+            big = vel[a, lo]
+            small = vel[a, lo]
+            for i in range(lo, hi):
+                big = ti.max(big, vel[a, i])
+                small = ti.min(small, vel[a, i])
+                squares += vel[a, i] * vel[a, i]
+            partial[blk, a] = big
+            partial[blk, dim + a] = small
+        partial[blk, 2 * dim] = squares
 
 
 @ti.kernel
@@ -378,9 +406,13 @@ class Potential(GridModel):
         self.vel.from_numpy(np.ascontiguousarray(np.asarray(state["v"]).T, dtype=real))
         self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
         self.step_index = step
-        self._grid_step = -1
+        self.invalidate()
         self._lambda2_step = -1  # step of the last lambda_2 (plain numbers: checkpoints keep them)
         self._lambda2_value = 0.0
+
+    def invalidate(self) -> None:
+        super().invalidate()
+        self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -448,16 +480,53 @@ class Potential(GridModel):
         _grid_pairs(p.n, p.radius**2, d2, v_cut, self.dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start,
                     grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
 
+    def _pair_energies(self) -> None:
+        """Each agent's half of its pair potentials in ``energy`` (switching: also ``valency`` and ``nearest``),
+        once per step: the stability guard and the metrics share them."""
+        if self._pairs_step == (self.step_index,):
+            return
+        if self.switching:
+            self._ensure_grid()
+            self._grid_pairs(self.valency, self.energy)
+        else:
+            p = self.params
+            _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
+        self._pairs_step = (self.step_index,)
+
+    def lyapunov(self) -> Lyapunov:
+        """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic
+        energy 1/2 sum |v_i|^2 and the pair potentials. Both must not increase (eqs. 8 and 12) but by the
+        integration error."""
+        self._pair_energies()
+        v = host_view(self.vel)  # the sum in the run's precision, no temporary: close enough for a 100 % slack
+        squares = float(np.einsum("ij,ij->", v, v)) if v is not None else self.kernel_velocity_stats()[2]
+        return Lyapunov("Q" if self.switching else "W", 0.5 * squares, total(self.energy, self.params.n))
+
+    def step_spread(self) -> tuple[float, float]:
+        """dt max_a (max_i v_ia - min_i v_ia), at most the largest relative displacement of two agents in a step,
+        and the desired distance d, the length over which the potential changes (Definition 2)."""
+        v = host_view(self.vel)
+        big, small = (v.max(axis=1), v.min(axis=1)) if v is not None else self.kernel_velocity_stats()[:2]
+        return self.params.dt * float((big - small).max()), self.params.desired_distance
+
+    def kernel_velocity_stats(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Each velocity component's max and min over the agents, and sum_i |v_i|^2, from a kernel's block
+        partials: the stability guard's numbers on GPU arches (the CPU reads the ndarray's memory in NumPy)."""
+        n, dim = self.params.n, self.dim
+        partial = _block_partials((n_blocks(n), 2 * dim + 1), self.vel.dtype)
+        _velocity_blocks(n, dim, self.vel, partial)
+        partial = partial.to_numpy().astype(np.float64)
+        return partial[:, :dim].max(axis=0), partial[:, dim:2 * dim].min(axis=0), float(partial[:, 2 * dim].sum())
+
     def metrics(self) -> dict[str, float]:
         p = self.params
-        n, d2 = p.n, p.desired_distance**2
+        n = p.n
         self._ensure_grid()
+        self._pair_energies()
         if self.switching:
-            self._grid_pairs(self.valency, self.energy)
             graph = self.graph.compute(p.radius, p.box)
             components = graph["clusters"]
         else:
-            _csr_energy(n, d2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
             components = 1.0  # validated connected, and fixed
             if n > EXACT_PAIRS_MAX:
                 self._grid_pairs(self._grid_valency, self._grid_energy)
