@@ -54,6 +54,14 @@ BEST = PAPER_FIG4["a"][3]  # the configuration of Figs. 5 and 7
 LEVELS = (1.0, 3.0, 10.0)  # our reduced grid of every weight (the paper: 1, 2, ..., 10)
 #: replicas at full size: the paper's configurations, each grid configuration, each (p, delta) of Fig. 7
 PAPER_REPLICAS, GRID_REPLICAS, FIG7_REPLICAS = 10, 5, 10
+#: the noise claim of Fig. 7: tau at p = 0 without and with the largest noise, over the paper's 50 runs, paired
+#: (replica r has seed r at both, so the same initial state)
+NOISE_LEVELS, NOISE_REPLICAS = (0.0, 0.9), 50
+#: the torus side is not in the paper: ours (200 bl) and one so large that no agent wraps before the DF
+WORLDS = (200.0, 1000.0)
+#: rho of Fig. 4e: the paper's ramp jitter gamma = T, none (every agent stops at the VA's depth), and none with a
+#: smaller minimum separation (values of params.ramp_jitter and params.min_separation)
+RHO_VARIANTS = ((1.0, 2.5), (0.0, 2.5), (0.0, 1.0))
 
 
 def _uses_cohesion(strategy: str) -> bool:
@@ -101,11 +109,27 @@ class Formation(Experiment):
                 "model": "formation", "replicas": 1 if quick else GRID_REPLICAS, "seed": 0, "set": fixed,
                 "grid": {"params.strategy": [strategy], **{f"params.weights.{w}": v for w, v in levels.items()}},
             }
+        best = {"params.strategy": ["S-2.2"], **{k: [v] for k, v in _weights(BEST).items()}}
         sweeps["formation-fig7"] = {
             "model": "formation", "replicas": 1 if quick else FIG7_REPLICAS, "seed": 0, "set": fixed,
-            "grid": {"params.strategy": ["S-2.2"], **{k: [v] for k, v in _weights(BEST).items()},
+            "grid": {**best,
                      "params.fail_prob": [0.0, 0.9] if quick else [round(0.1 * k, 1) for k in range(10)],
                      "params.noise_deg": [0.0, 0.9] if quick else [0.0, 0.3, 0.6, 0.9]},
+        }
+        sweeps["formation-noise"] = {
+            "model": "formation", "replicas": 2 if quick else NOISE_REPLICAS, "seed": 0, "set": fixed,
+            "grid": {**best, "params.fail_prob": [0.0], "params.noise_deg": list(NOISE_LEVELS)},
+        }
+        sweeps["formation-torus"] = {  # the Fig. 4 configurations on a torus where nobody wraps
+            "model": "formation", "replicas": 1 if quick else PAPER_REPLICAS, "seed": 0,
+            "set": {**fixed, "params.world": WORLDS[1]},
+            "points": sweeps["formation-fig4-paper"]["points"][:1 if quick else None],
+        }
+        sweeps["formation-rho"] = {  # Fig. 4e: what sets rho
+            "model": "formation", "replicas": 1 if quick else PAPER_REPLICAS, "seed": 0, "set": fixed,
+            "points": [{"params.strategy": PAPER_FIG4["e"][2], **_weights(PAPER_FIG4["e"][3]),
+                        "params.ramp_jitter": jitter, "params.min_separation": separation}
+                       for jitter, separation in RHO_VARIANTS[1:]],
         }
         return sweeps
 
