@@ -27,7 +27,7 @@ import pandas as pd
 from tflock.config import config_to_dict, load_config, tomllib
 from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
-from tflock.reproduce.stats import Estimate, mean_ci, proportion_ci
+from tflock.reproduce.stats import Estimate, mean_ci, share_text
 
 N = 50
 BOX = math.sqrt(N)  # density 1
@@ -245,13 +245,6 @@ def summarise(replicas: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _fraction(value: float, n: float) -> str:
-    """A fraction of `n` replicas with its Wilson 95 % interval."""
-    if not np.isfinite(value) or not np.isfinite(n) or n < 1:
-        return "-"
-    return proportion_ci(int(round(value * n)), int(round(n))).short(2)
-
-
 def _rows(table: pd.DataFrame) -> list[str]:
     lines = ["| leader | rule | boundary | r | k | agreed | followed | graph connected all 2nd half | "
              "agreed if so | split for good | median e_theta (max) | median leader_error | final clusters |",
@@ -260,9 +253,9 @@ def _rows(table: pd.DataFrame) -> list[str]:
         n, connected = row.replicas, row.connected_late * row.replicas
         clusters = Estimate(row.clusters, row.clusters_lo, row.clusters_hi, n)
         lines.append(f"| {'yes' if row.leader else 'no'} | {row.rule} | {row.boundary} | {row.radius:g} | "
-                     f"{row.k_expected:.1f} | {_fraction(row.agreed, n)} | {_fraction(row.followed, n)} | "
-                     f"{_fraction(row.connected_late, n)} | {_fraction(row.agreed_if_connected_late, connected)} | "
-                     f"{_fraction(row.split, n)} | {row.median_e_theta:.2g} ({row.max_e_theta:.2g}) | "
+                     f"{row.k_expected:.1f} | {share_text(row.agreed, n)} | {share_text(row.followed, n)} | "
+                     f"{share_text(row.connected_late, n)} | {share_text(row.agreed_if_connected_late, connected)} | "
+                     f"{share_text(row.split, n)} | {row.median_e_theta:.2g} ({row.max_e_theta:.2g}) | "
                      f"{'-' if not row.leader else f'{row.median_leader_error:.2g}'} | {clusters.short(1)} |")
     return lines
 
@@ -295,7 +288,7 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
     pairs = table[~table["leader"]].pivot_table(index=["boundary", "radius"], columns="rule",
                                                 values=["agreed", "clusters"]).dropna()
     def share(row: pd.Series, column: str) -> str:
-        return _fraction(row[column], row["replicas"])
+        return share_text(row[column], row["replicas"])
 
     checks = {
         f"well-connected periodic swarms agree (Theorems 1-2, both rules; r = {r_max:g}, agreed: "

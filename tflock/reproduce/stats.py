@@ -116,6 +116,17 @@ def proportion_ci(successes: int, n: int) -> Estimate:
     return Estimate(p, max(0.0, centre - half), min(1.0, centre + half), n)
 
 
+def share_text(fraction: float, n: float, percent: bool = False) -> str:
+    """A fraction of `n` replicas with its Wilson interval: ``0.96 [0.87, 0.99]``, or ``96 % [87, 99]``; ``-``
+    where there is none (no replicas, or no fraction)."""
+    if not (np.isfinite(fraction) and np.isfinite(n) and n >= 1):
+        return "-"
+    estimate = proportion_ci(int(round(fraction * n)), int(round(n)))
+    if percent:
+        return f"{100 * estimate.value:.0f} % [{100 * estimate.lo:.0f}, {100 * estimate.hi:.0f}]"
+    return estimate.short(2)
+
+
 def bootstrap_ci(samples: Sequence[np.ndarray], statistic: Callable[[list[np.ndarray]], float], value: float,
                  seed: int = 0, resamples: int = BOOTSTRAP_RESAMPLES) -> Estimate:
     """Percentile interval of `statistic` over resamples of each sample's replicas with replacement (the samples

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from tflock.reproduce.experiment import Experiment, Report, Results, Series
-from tflock.reproduce.stats import Estimate, mean_ci, proportion_ci
+from tflock.reproduce.stats import Estimate, mean_ci, share_text
 
 N = 10
 D = 1.0  # desired distance d: the minimum of V
@@ -259,12 +259,9 @@ class Tanner(Experiment):
 
         def pct(x: float, n: float | None = None) -> str:
             """A fraction in per cent; of `n` replicas, with its Wilson 95 % interval."""
-            if math.isnan(x) or (n is not None and not n >= 1):
-                return "n/a"
-            if n is None:
-                return f"{100 * x:.0f} %"
-            share = proportion_ci(int(round(x * n)), int(round(n)))
-            return f"{100 * x:.0f} % [{100 * share.lo:.0f}, {100 * share.hi:.0f}]"
+            if n is not None:
+                return share_text(x, n, percent=True)
+            return "n/a" if math.isnan(x) else f"{100 * x:.0f} %"
 
         lines = ["| case | replicas | connected | velocities synchronised (all / connected) | "
                  "final min distance (min / median, m) | near collisions (< 0.01 d) | valencies constant "
