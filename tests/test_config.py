@@ -58,6 +58,7 @@ def test_defaults() -> None:
         "max_turn_deg": 360.0,
         "async_bound": 1,
         "leader": {"enabled": False, "heading_deg": 0.0},
+        "wrap_headings": True,
     }
     assert config.engine.model_dump() == {"arch": "cpu", "threads": 0, "precision": "f32"}
     assert config.log.model_dump() == {

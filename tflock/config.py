@@ -222,6 +222,11 @@ class VicsekParams(BaseModel):
         "in any B steps and sees neighbours up to B - 1 steps late; 1 = synchronous updates",
     )
     leader: LeaderConfig = Field(default_factory=LeaderConfig, description="optional leader (agent 0)")
+    wrap_headings: bool = Field(
+        True,
+        description="wrap headings into [0, 2 pi) after every update and wall reflection (Samiloglu section 3); "
+        "false keeps them as real numbers, which changes only the rules that use angle values (average, laplacian)",
+    )
 
     @model_validator(mode="after")
     def _cross_field_rules(self) -> VicsekParams:

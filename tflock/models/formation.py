@@ -22,9 +22,10 @@ on the VA, behind it (section 4), headings uniform in [0, 2 pi). One synchronous
    eps ~ U[-delta, delta] (``Stream.NOISE``), wrapped into [0, 2 pi).
 5. speed, eqs. (1)-(2): crossing the VAIR (inside at x(t) differs from the stored flag) starts a linear ramp
    from the current speed v_ini at t_s = t toward |va| (entering) or |vout| (leaving), lasting
-   dt_i = max(1, T + rnd), T = VAIR / (|vout| - |va|) ("time to move from the VAIR boundary to the VA's position",
-   at the closing speed of an agent chasing the VA: ``FormationParams.ramp_time``),
-   rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper: gamma ~ T; drawn from stream 300). The printed
+   dt_i = max(1, T + rnd), T = 2 VAIR / (|vout| - |va|) ("time to move from the VAIR boundary to the VA's
+   position": an agent chasing the VA closes on it at |vout| - |va|, falling linearly to 0 over the ramp, so at half
+   that on average; ``FormationParams.ramp_time``), rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper:
+   gamma ~ T, "a homogeneous distribution of agents inside the VAIR"; drawn from stream 300). The printed
    eq. (1), |v| = |va| - (|v_ini| - |va|)(t - t_f)/dt_i with t_f = t_s + dt_i, is that ramp (t - t_f <= 0);
    the printed eq. (2) runs backwards (it ends at |va|), so we read it as the same ramp toward |vout|:
    |v| = |vout| - (|vout| - |v_ini|)(t_f - t)/dt_i. The speed for the move t -> t+1 is

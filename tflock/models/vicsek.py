@@ -13,7 +13,9 @@ One synchronous step t -> t+1 for every agent i:
    - ``laplacian``: Jadbabaie eqs. (17)-(20) with G = gI: theta_i + (1/g) sum (theta_j - theta_i), g > n;
 3. turn limit, 003 eq. (7a): theta_i + clamp(phi, -alpha, alpha), phi the desired turn (eqs. 8-10; wrapped into
    [-pi, pi) for ``vector`` and ``relative``); alpha = 360 degrees is no limit for any rule;
-4. noise xi ~ U[-eta/2, eta/2] (Vicsek 1995), then headings are wrapped into [0, 2 pi) (003's convention);
+4. noise xi ~ U[-eta/2, eta/2] (Vicsek 1995), then headings are wrapped into [0, 2 pi) (003's convention; with
+   ``wrap_headings`` false they stay real numbers, after a wall reflection too: the other reading of 003, which
+   changes only the rules that use angle values themselves, ``average`` and ``laplacian``);
 5. move x(t+1) = x(t) + v0 (cos, sin) theta_i(t+1) and apply the boundary (reflecting: mirror the position
    and reflect the heading, 003 section 5.2).
 
@@ -108,7 +110,7 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, speed: float, noise: float,
           box: float, max_turn: float, inv_g: float, bound: ti.i32,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
-          nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+          wrap: ti.template(), nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
           order: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
           coords_sorted: ti.types.ndarray(),
           payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
@@ -189,7 +191,9 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
             else:
                 phi = inv_g * (acc_a - count * th_i)
             xi = noise * (uniform_ti(key, t, local, Stream.NOISE) - 0.5)
-            new = wrap_two_pi(th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi)
+            new = th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi
+            if ti.static(wrap):
+                new = wrap_two_pi(new)
         sin_new, cos_new = sin_cos(new)
         q = p + speed * ti.Vector([cos_new, sin_new])
         if ti.static(boundary == PERIODIC):
@@ -200,7 +204,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                 new = math.pi - new
             if flips[1] == 1:
                 new = -new
-            new = wrap_two_pi(new)
+            if ti.static(wrap):
+                new = wrap_two_pi(new)
         pos[0, s] = q[0]
         pos[1, s] = q[1]
         theta[s] = new
@@ -413,6 +418,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
 @ti.func
 def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
                   rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
+                  wrap: ti.template(),
                   id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
                   pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
                   turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
@@ -439,7 +445,9 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         for k in ti.static(range(width)):
             key[k], local[k] = replica_key(seed, i[k], per_replica)
     u = ti.Vector([uniform_ti(key[k], t, local[k], Stream.NOISE) for k in ti.static(range(width))])
-    new = wrap_two_pi(th + ti.math.clamp(phi, -max_turn, max_turn) + noise * (u - 0.5))
+    new = th + ti.math.clamp(phi, -max_turn, max_turn) + noise * (u - 0.5)
+    if ti.static(wrap):
+        new = wrap_two_pi(new)
     update = local >= 0  # synchronous: every agent updates
     if ti.static(leader):
         update = local != 0  # the leader keeps theta0 (Jadbabaie eq. 22)
@@ -454,7 +462,9 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         qx, flip_x = reflect(qx, box)
         qy, flip_y = reflect(qy, box)
         new = ti.select(flip_x == 1, math.pi - new, new)
-        new = wrap_two_pi(ti.select(flip_y == 1, -new, new))
+        new = ti.select(flip_y == 1, -new, new)
+        if ti.static(wrap):
+            new = wrap_two_pi(new)
         sin_new, cos_new = sin_cos(new)  # trig holds sin_cos(theta) exactly, as cos_sin computes it
     change = ti.abs(wrap_pi(new - th))
     for k in ti.static(range(width)):
@@ -481,7 +491,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
 @ti.kernel
 def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
             max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
-            batched: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+            batched: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
             payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
             theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
             updated: ti.types.ndarray(), draw: ti.i32, bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
@@ -490,12 +500,12 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // UPDATE_WIDTH):
         _update_lanes(b * UPDATE_WIDTH, UPDATE_WIDTH, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
-                      boundary, leader, batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn,
-                      updated, draw, bits, word_rank, drawn)
+                      boundary, leader, batched, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids,
+                      turn, updated, draw, bits, word_rank, drawn)
     for s in range(n // UPDATE_WIDTH * UPDATE_WIDTH, n):
         _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                      batched, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw, bits,
-                      word_rank, drawn)
+                      batched, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw,
+                      bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -685,7 +695,7 @@ class Vicsek(GridModel):
                 _step(self.step_index, self.seed, self.n_total, p.n, p.radius, p.speed, p.noise, p.box,
                       math.radians(p.max_turn_deg), inv_g, p.async_bound,
                       RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
-                      g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed, self.grid.order,
+                      p.wrap_headings, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed, self.grid.order,
                       self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
                       self.theta, self.ids, self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
             self.step_index += 1
@@ -698,7 +708,8 @@ class Vicsek(GridModel):
             _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start,
                             grid.runs(), grid.pos_sorted, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
-                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, grid.id_sorted, grid.pos_sorted,
+                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, p.wrap_headings, grid.id_sorted,
+                grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
 

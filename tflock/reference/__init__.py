@@ -49,8 +49,9 @@ def adjacency(x: np.ndarray, radius: float, boundary: str, box: float) -> np.nda
     return a
 
 
-def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
-    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
+def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float, wrap: bool = True):
+    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading (a reflected
+    heading wrapped into [0, 2 pi) unless `wrap` is false)."""
     x = x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
     if boundary == "periodic":
         x = x - box * np.floor(x / box)
@@ -60,7 +61,8 @@ def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: flo
         x = np.where(low, -x, np.where(high, 2 * box - x, x)).astype(x.dtype)
         flip = low | high
         theta = np.where(flip[:, 0], math.pi - theta, theta)
-        theta = wrap_two_pi(np.where(flip[:, 1], -theta, theta).astype(x.dtype))
+        theta = np.where(flip[:, 1], -theta, theta).astype(x.dtype)
+        theta = wrap_two_pi(theta) if wrap else theta
     return x, theta
 
 
@@ -80,10 +82,12 @@ def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: Vic
 
 
 def turn_and_noise(theta: np.ndarray, phi: np.ndarray, t: int, params: VicsekParams, seed: int) -> np.ndarray:
-    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2], headings wrapped into [0, 2 pi)."""
+    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2], headings wrapped into [0, 2 pi) (unless
+    ``params.wrap_headings`` is false)."""
     alpha = math.radians(params.max_turn_deg)
     xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
-    return wrap_two_pi((theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype))
+    new = (theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype)
+    return wrap_two_pi(new) if params.wrap_headings else new
 
 
 def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
@@ -93,7 +97,7 @@ def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, 
     new = turn_and_noise(theta, desired_turn(theta, a, seen, params), t, params, seed)
     if params.leader.enabled:
         new[0] = theta[0]
-    return move(x, new, params.speed, params.boundary, params.box)
+    return move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
 
 
 def async_draws(seed: int, t: int, omega: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +136,7 @@ def vicsek_step_async(hist_x: np.ndarray, hist_theta: np.ndarray, omega: np.ndar
     np.fill_diagonal(a, 0)
     new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params), t, params, seed)
     new = np.where(update, new, theta).astype(theta.dtype)
-    x_new, theta_new = move(x, new, params.speed, params.boundary, params.box)
+    x_new, theta_new = move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
     hist_x, hist_theta = hist_x.copy(), hist_theta.copy()
     hist_x[(t + 1) % ring], hist_theta[(t + 1) % ring] = x_new, theta_new
     return hist_x, hist_theta, np.where(update, 1, omega + 1), update
