@@ -172,19 +172,17 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, rad
                    n_buckets: ti.i32, layout: ti.template(), metric: ti.template(), dim: ti.template(),
                    start: ti.types.ndarray(), mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
                    coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
-    """Join the pairs within R whose agents lie in two stripes, in one serial pass (a few per cent of the agents:
-    only those of a stripe's first and last layer have such neighbours; each pair is met from both sides)."""
+    """Join the pairs within R whose agents lie in two stripes, in one serial pass. Cells are at least R wide, so
+    such a pair joins the first layer of a stripe to the layer before it (the previous stripe's last, or across a
+    periodic wrap): the agents of each stripe's first layer are tested against the stencil spans one layer back
+    (the first third of :func:`stencil_span`'s spans, where the slowest axis steps back)."""
     ti.loop_config(serialize=True)
-    for e in range(n_stripes * 2):
-        j = e // 2
+    for j in range(n_stripes):
         b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
-        first = b_lo
-        if e % 2 == 1:
-            first = ti.max(b_lo, b_hi - layer_buckets)
-        for s in range(start[first], start[ti.min(first + layer_buckets, b_hi)]):
+        for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
             p = load_vec(pos_sorted, s, dim)
             c = load_cell(coords_sorted, s, dim)
-            for o in range(ti.static(span_count(layout, dim))):
+            for o in range(ti.static(span_count(layout, dim) // 3)):
                 lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
                 begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
                 for k in range(begin, end):
