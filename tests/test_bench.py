@@ -29,7 +29,7 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
         assert r["agent_steps_per_s"] == pytest.approx(r["case"]["n"] / r["ms_median"] * 1e3)
         assert r["build_ms"] > 0 and r["interactions_ms"] >= 0 and r["metrics_ms"] > 0 and r["logging_ms"] > 0
         assert r["run_ms_median"] > 0 and r["run_overhead"] > -1.0  # defined as test_runs_pair_turns checks
-        assert r["logging_overhead"] > -1.0
+        assert r["logged_ms_median"] > 0 and r["logging_overhead"] > -1.0
         assert r["mean_neighbors"] > 0 and r["first_step_s"] > 0
         assert 50 < r["device_bytes_per_agent"] < 400 and r["peak_rss_mb"] > 0
         assert set(r["peers"]) == {"numpy_reference", "ckdtree_sparse"} | ({"numba_cells"} if HAS_NUMBA else set())
@@ -42,7 +42,7 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
     assert len(rows) == 4 and "ckdtree_sparse_ratio" in rows[0]
     assert not HAS_NUMBA or {"numba_cells_ms", "numba_cells_ratio", "numba_cells_first_call_s"} <= set(rows[0])
     assert prefix.with_suffix(".png").stat().st_size > 10_000
-    assert "agent-steps/s" in proc.stdout and "run ms/step" in proc.stdout
+    assert "agent-steps/s" in proc.stdout and "run ms/step" in proc.stdout and "logged run" in proc.stdout
 
 
 @pytest.mark.parametrize("args,key", [(["--sizes", "0"], "--sizes"), (["--models", "boids"], "--models"),
@@ -175,12 +175,11 @@ def test_runs_pair_turns(monkeypatch, log):
     assert state["metrics_every"] == {1} and sim.config.log.metrics_every == bench.METRICS_NEVER
     if log:
         assert turns.logging_overhead == pytest.approx(0.5, abs=1e-9)
-        assert turns.run_overhead == pytest.approx(1.25 * 1.5 - 1, abs=1e-9)
-        assert turns.run == pytest.approx(1.25 * 1.5 * 8, rel=1e-9)  # median of 7.5 7.5 7.5 15 15 30 30 50 ms
+        assert turns.logged == pytest.approx(1.25 * 1.5 * 8, rel=1e-9)  # median of 7.5 7.5 7.5 15 15 30 30 50 ms
     else:
-        assert turns.logging_overhead is None
-        assert turns.run_overhead == pytest.approx(0.25, abs=1e-9)
-        assert turns.run == pytest.approx(1.25 * 8, rel=1e-9)
+        assert turns.logged is None and turns.logging_overhead is None
+    assert turns.run_overhead == pytest.approx(0.25, abs=1e-9)
+    assert turns.run == pytest.approx(1.25 * 8, rel=1e-9)
 
 
 def test_results_go_under_results_bench_by_default():

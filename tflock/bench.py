@@ -83,9 +83,10 @@ class BenchResult:
     interactions_ms: float | None = None
     metrics_ms: float = 0.0
     logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
-    run_ms_median: float = 0.0  # a run's ms per step as tflock sim runs (metrics, guard; with log the frames)
+    run_ms_median: float = 0.0  # a run's ms per step as tflock sim runs it: metrics (default cadence), guard
     run_overhead: float = 0.0  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
-    logging_overhead: float | None = None  # with log: median over turns of (run / the same run without frames) - 1
+    logged_ms_median: float | None = None  # with log: the same run with a frame every step
+    logging_overhead: float | None = None  # with log: median over turns of (logged run / run without frames) - 1
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
     # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
@@ -252,9 +253,10 @@ class Turns:
     """What :func:`_plain_and_run_steps` measured (ms per step)."""
 
     plain: list[float]  # every plain step: the model's step alone (grid build included)
-    run: float  # median over turns of a run's ms per step, as tflock sim runs (with --log: frames too)
+    run: float  # median over turns of a run's ms per step, as tflock sim runs it without a recording
     run_overhead: float  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
-    logging_overhead: float | None = None  # with --log: median over turns of (run / its run without frames) - 1
+    logged: float | None = None  # with --log: median over turns of a logged run's ms per step
+    logging_overhead: float | None = None  # with --log: median over turns of (logged run / its turn's run) - 1
 
 
 def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) -> Turns:
@@ -273,7 +275,7 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
     model, log_config = sim.model, sim.config.log
     start = (model.checkpoint(), model.step_index)
     plain: list[float] = []
-    runs, run_ratios, log_ratios = [], [], []
+    runs, run_ratios, logged, log_ratios = [], [], [], []
 
     def timed_run(frames: bool) -> float:
         model.restore(*start)
@@ -291,13 +293,15 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
         model.restore(*start)
         turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(repeats)]
         plain += turn
-        bare = timed_run(frames=False)
-        run = timed_run(frames=True) if log else bare
-        runs.append(run)
-        run_ratios.append(run / statistics.fmean(turn))
-        log_ratios.append(run / bare)
-    return Turns(plain, statistics.median(runs), statistics.median(run_ratios) - 1.0,
-                 statistics.median(log_ratios) - 1.0 if log else None)
+        runs.append(timed_run(frames=False))
+        run_ratios.append(runs[-1] / statistics.fmean(turn))
+        if log:
+            logged.append(timed_run(frames=True))
+            log_ratios.append(logged[-1] / runs[-1])
+    turns = Turns(plain, statistics.median(runs), statistics.median(run_ratios) - 1.0)
+    if log:
+        turns.logged, turns.logging_overhead = statistics.median(logged), statistics.median(log_ratios) - 1.0
+    return turns
 
 
 def run_case(case: BenchCase) -> BenchResult:
@@ -324,7 +328,7 @@ def run_case(case: BenchCase) -> BenchResult:
         turns = _plain_and_run_steps(sim, case.repeats, default_metrics_every, case.log)
         steps = turns.plain
         result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
-        result.logging_overhead = turns.logging_overhead
+        result.logged_ms_median, result.logging_overhead = turns.logged, turns.logging_overhead
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)

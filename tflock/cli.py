@@ -439,21 +439,21 @@ def bench(
             except RuntimeError as e:
                 err.print(f"[yellow]skipped:[/] {e}", highlight=False)
             progress.advance(task)
-    table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, metrics and guard "
-                  "(with --log frames too), against the plain step; log: one frame, the logged run against the run "
-                  "without frames; workload = mean neighbours per agent)")
-    for column in ("model", "N", "state", "neighbours", "ms/step", "run ms/step", "agent-steps/s", "build",
-                   "interact", "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
+    table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, with metrics and "
+                  "guard, against the plain step; logged run: a frame every step too, against the run; "
+                  "workload = mean neighbours per agent)")
+    for column in ("model", "N", "state", "neighbours", "ms/step", "run ms/step", "logged run", "agent-steps/s",
+                   "build", "interact", "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
         table.add_column(column, justify="right")
     for r in results:
         c = r.case
         opt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
         peer_text = ", ".join(f"{k} {v['ratio']:.1f}x" for k, v in r.peers.items()) or "-"
+        logged = "-" if r.logged_ms_median is None else f"{r.logged_ms_median:.2f} ({r.logging_overhead:+.0%})"
         table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
-                      f"{r.run_ms_median:.2f} ({r.run_overhead:+.0%})", f"{r.agent_steps_per_s:.3g}",
-                      opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}",
-                      "-" if r.logging_ms is None else f"{r.logging_ms:.1f} ({r.logging_overhead:+.0%})",
+                      f"{r.run_ms_median:.2f} ({r.run_overhead:+.0%})", logged, f"{r.agent_steps_per_s:.3g}",
+                      opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
                       f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)
     (out if out.is_terminal else Console(width=200)).print(table)
     if not results:
