@@ -28,7 +28,8 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
         assert r["ms_min"] <= r["ms_median"] <= r["ms_max"]
         assert r["agent_steps_per_s"] == pytest.approx(r["case"]["n"] / r["ms_median"] * 1e3)
         assert r["build_ms"] > 0 and r["interactions_ms"] >= 0 and r["metrics_ms"] > 0 and r["logging_ms"] > 0
-        assert r["run_ms_median"] > 0 and r["run_overhead"] > -1.0  # defined as test_runs_pair_turns checks
+        assert r["run_ms_min"] <= r["run_ms_median"] <= r["run_ms_max"]
+        assert r["run_overhead"] > -1.0  # defined as test_runs_pair_turns checks
         assert r["logged_ms_median"] > 0 and r["logging_overhead"] > -1.0
         assert r["mean_neighbors"] > 0 and r["first_step_s"] > 0
         assert 50 < r["device_bytes_per_agent"] < 400 and r["peak_rss_mb"] > 0
@@ -179,7 +180,7 @@ def test_runs_pair_turns(monkeypatch, log):
     else:
         assert turns.logged is None and turns.logging_overhead is None
     assert turns.run_overhead == pytest.approx(0.25, abs=1e-9)
-    assert turns.run == pytest.approx(1.25 * 8, rel=1e-9)
+    assert turns.run == pytest.approx(1.25 * 8, rel=1e-9) and turns.run_range == pytest.approx((5.0, 20.0))
 
 
 def test_results_go_under_results_bench_by_default():

@@ -84,6 +84,8 @@ class BenchResult:
     metrics_ms: float = 0.0
     logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
     run_ms_median: float = 0.0  # a run's ms per step as tflock sim runs it: metrics (default cadence), guard
+    run_ms_min: float = 0.0  # the fastest and slowest of those runs (ms per step)
+    run_ms_max: float = 0.0
     run_overhead: float = 0.0  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
     logged_ms_median: float | None = None  # with log: the same run with a frame every step
     logging_overhead: float | None = None  # with log: median over turns of (logged run / run without frames) - 1
@@ -254,6 +256,7 @@ class Turns:
 
     plain: list[float]  # every plain step: the model's step alone (grid build included)
     run: float  # median over turns of a run's ms per step, as tflock sim runs it without a recording
+    run_range: tuple[float, float]  # the fastest and slowest run (ms per step)
     run_overhead: float  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
     logged: float | None = None  # with --log: median over turns of a logged run's ms per step
     logging_overhead: float | None = None  # with --log: median over turns of (logged run / its turn's run) - 1
@@ -298,7 +301,7 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
         if log:
             logged.append(timed_run(frames=True))
             log_ratios.append(logged[-1] / runs[-1])
-    turns = Turns(plain, statistics.median(runs), statistics.median(run_ratios) - 1.0)
+    turns = Turns(plain, statistics.median(runs), (min(runs), max(runs)), statistics.median(run_ratios) - 1.0)
     if log:
         turns.logged, turns.logging_overhead = statistics.median(logged), statistics.median(log_ratios) - 1.0
     return turns
@@ -328,6 +331,7 @@ def run_case(case: BenchCase) -> BenchResult:
         turns = _plain_and_run_steps(sim, case.repeats, default_metrics_every, case.log)
         steps = turns.plain
         result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
+        result.run_ms_min, result.run_ms_max = turns.run_range
         result.logged_ms_median, result.logging_overhead = turns.logged, turns.logging_overhead
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)

@@ -452,7 +452,8 @@ def bench(
         logged = "-" if r.logged_ms_median is None else f"{r.logged_ms_median:.2f} ({r.logging_overhead:+.0%})"
         table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
-                      f"{r.run_ms_median:.2f} ({r.run_overhead:+.0%})", logged, f"{r.agent_steps_per_s:.3g}",
+                      f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {r.run_overhead:+.0%})",
+                      logged, f"{r.agent_steps_per_s:.3g}",
                       opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
                       f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)
     (out if out.is_terminal else Console(width=200)).print(table)
