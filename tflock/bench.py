@@ -88,6 +88,8 @@ class BenchResult:
     run_ms_max: float = 0.0
     run_overhead: float = 0.0  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
     logged_ms_median: float | None = None  # with log: the same run with a frame every step
+    logged_ms_min: float | None = None  # with log: the fastest and slowest logged run (ms per step)
+    logged_ms_max: float | None = None
     logging_overhead: float | None = None  # with log: median over turns of (logged run / run without frames) - 1
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
@@ -259,6 +261,7 @@ class Turns:
     run_range: tuple[float, float]  # the fastest and slowest run (ms per step)
     run_overhead: float  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
     logged: float | None = None  # with --log: median over turns of a logged run's ms per step
+    logged_range: tuple[float, float] | None = None  # with --log: the fastest and slowest logged run
     logging_overhead: float | None = None  # with --log: median over turns of (logged run / its turn's run) - 1
 
 
@@ -303,7 +306,8 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
             log_ratios.append(logged[-1] / runs[-1])
     turns = Turns(plain, statistics.median(runs), (min(runs), max(runs)), statistics.median(run_ratios) - 1.0)
     if log:
-        turns.logged, turns.logging_overhead = statistics.median(logged), statistics.median(log_ratios) - 1.0
+        turns.logged, turns.logged_range = statistics.median(logged), (min(logged), max(logged))
+        turns.logging_overhead = statistics.median(log_ratios) - 1.0
     return turns
 
 
@@ -333,6 +337,8 @@ def run_case(case: BenchCase) -> BenchResult:
         result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
         result.run_ms_min, result.run_ms_max = turns.run_range
         result.logged_ms_median, result.logging_overhead = turns.logged, turns.logging_overhead
+        if turns.logged_range is not None:
+            result.logged_ms_min, result.logged_ms_max = turns.logged_range
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)

@@ -449,7 +449,8 @@ def bench(
         c = r.case
         opt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
         peer_text = ", ".join(f"{k} {v['ratio']:.1f}x" for k, v in r.peers.items()) or "-"
-        logged = "-" if r.logged_ms_median is None else f"{r.logged_ms_median:.2f} ({r.logging_overhead:+.0%})"
+        logged = "-" if r.logged_ms_median is None else (
+            f"{r.logged_ms_median:.2f} ({r.logged_ms_min:.2f}-{r.logged_ms_max:.2f}, {r.logging_overhead:+.0%})")
         table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
                       f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {r.run_overhead:+.0%})",
