@@ -60,17 +60,17 @@ def class_of(hue: int, density: int, ordered: int) -> int:
 
 def class_colors() -> np.ndarray:
     """(CLASSES, 4) uint8 RGBA of every class (class 0, empty, is transparent): the hue wheel's colour of the
-    sector, darker where sparse, greyer where disordered. Kept below the agents' full brightness so that drawn
+    sector, darker where sparse, greyer where disordered. At most half the agents' brightness, so that the drawn
     agents stand out on it."""
     from tflock.frame import angle_colors
 
     out = np.zeros((CLASSES, 4), np.uint8)
     wheel = angle_colors(np.arange(HUES) * (2 * math.pi / HUES)).astype(np.float64)
-    value = np.linspace(0.22, 0.7, DENSITY_LEVELS)
+    value = np.linspace(0.14, 0.5, DENSITY_LEVELS)
     for h in range(HUES):
         for d in range(DENSITY_LEVELS):
             for o in range(ORDER_LEVELS):
-                saturation = 0.85 if o else 0.3
+                saturation = 0.8 if o else 0.15
                 rgb = value[d] * (saturation * wheel[h] + (1 - saturation) * 255.0)
                 out[class_of(h, d, o)] = (*np.rint(rgb).astype(np.uint8), 255)
     return out
