@@ -434,7 +434,7 @@ class Recorder:
         x = 0.0
         title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}
         if legend is not None:
-            rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, -1.55]], labels=legend.title, **title), static=True)
+            rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, -1.85]], labels=legend.title, **title), static=True)
             if legend.wheel:
                 angle = np.arange(24) * (2 * math.pi / 24)
                 vectors = np.stack([np.cos(angle), -np.sin(angle)], axis=1).astype(np.float32)
@@ -469,7 +469,7 @@ class Recorder:
             where = np.array([[x + 0.22 * len(hues) + 0.45, -0.9 + 0.55 * r] for r in range(4)], np.float32)
             rec.log(f"{LEGEND}/field/levels", rr.Points2D(where, radii=0.0, labels=notes, show_labels=True,
                                                           colors=[(200, 200, 200)] * 4), static=True)
-            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 0.8, -1.55]], labels="field of all agents", **title),
+            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 0.8, -1.85]], labels="field of all agents", **title),
                     static=True)
 
     # ------------------------------------------------------------------ logging
