@@ -448,3 +448,85 @@ def test_metric_groups_and_constant_series(tmp_path: Path) -> None:
                for store in reader.blueprints()]
     # the layout is sent again at the end, with the constant series apart
     assert len(layouts) == 2 and sorted("constant: order" in text for text in layouts) == [False, True]
+
+
+#: (model, params, reference speed's parameter) of the read-back test of every model's content; small N, few steps
+MODEL_CASES = [
+    ("adaptive", {"n": 1500, "dim": 3, "box": 8.0, "radius": 1.0}, "speed"),
+    ("potential", {"n": 1500, "box": 40.0, "dt": 0.05, "topology": "fixed", "graph": "ring"}, "speed"),
+    ("formation", {"n": 300, "init_length": 60.0, "init_width": 40.0}, "out_speed"),
+]
+
+
+@pytest.mark.parametrize(("model", "params", "speed_name"), MODEL_CASES, ids=[c[0] for c in MODEL_CASES])
+def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, params: dict, speed_name: str) -> None:
+    """Read back from each model's file what a person sees: the drawn agents with their ids and UI-point sizes,
+    arrows of the move just made relative to the reference speed (the one convention), edges joining drawn agents
+    only (potential's fixed graph: edges of that graph), and the field of all agents: one image in 2D, three
+    projections in 3D, each of all N agents."""
+    from tflock.frame import arrow_length
+    from tflock.record import point_radius
+
+    path = tmp_path / f"{model}.rrd"
+    steps, drawn_count = 4, 200
+    sim = make_sim(model=model, params=params, steps=steps, record=path,
+                   log={"max_agents": drawn_count, "max_edges": 400, "field": 32})
+    sim.step(steps - 1)
+    before = sim.model.state()["x"].astype(np.float64)
+    sim.step(1)
+    selected, state, world, p = sim._selected, sim.model.state(), sim.model.world(), sim.model.params
+    sim.close()
+    assert verify_recording(path)
+    assert read_recording(path).steps == list(range(steps + 1))
+    dim, n = world.dim, p.n
+    kind = "Points2D" if dim == 2 else "Points3D"
+    batches = _chunks(path)
+    agents = batches["/world/agents"]
+    pos = np.array(_last(agents, f"{kind}:positions"))
+    np.testing.assert_allclose(pos, state["x"][selected], atol=1e-4)
+    assert len(selected) == drawn_count and np.ptp(selected) > n // 2  # a sample spread over all ids
+    assert _last(agents, f"{kind}:labels") == [f"agent {i}" for i in selected]
+    assert _last(agents, f"{kind}:radii") == pytest.approx([-point_radius(drawn_count)])  # UI points
+
+    # arrows: (x(t) - x(t - 1)) / dt over the reference speed, arrow_length long per unit of it
+    arrows = "Arrows2D" if dim == 2 else "Arrows3D"
+    vectors = np.array(_last(batches["/world/agents/headings"], f"{arrows}:vectors"))
+    moved = state["x"][selected].astype(np.float64) - before[selected]
+    if world.boundary == "periodic":
+        moved -= world.box * np.round(moved / world.box)
+    length = arrow_length(world.box, drawn_count, dim)
+    expected = moved / world.dt / getattr(p, speed_name) * length
+    np.testing.assert_allclose(vectors, expected, atol=2e-3 * length)
+    assert np.max(np.linalg.norm(vectors, axis=1)) > 0.3 * length  # drawn, not vanishing
+
+    # edges: both ends are drawn agents (the far end up to the periodic box), at most the cap
+    strips = np.array(_last(batches["/world/edges"], f"LineStrips{dim}D:strips"))
+    assert 0 < len(strips) <= 400
+
+    def row_of(point: np.ndarray) -> int:
+        gap = pos - point
+        if world.boundary == "periodic":
+            gap -= world.box * np.round(gap / world.box)
+        row = int(np.argmin(np.linalg.norm(gap, axis=1)))
+        assert np.linalg.norm(gap[row]) < 1e-3, "an edge end that is no drawn agent"
+        return row
+
+    pairs = {tuple(sorted((int(selected[row_of(a)]), int(selected[row_of(b)])))) for a, b in strips}
+    assert len(pairs) == len(strips)  # each edge once
+    if model == "potential":
+        graph = {tuple(sorted(e)) for e in sim.model.edges.tolist()}
+        assert pairs <= graph
+    else:
+        assert np.max(np.linalg.norm(strips[:, 1] - strips[:, 0], axis=1)) <= p.radius + 1e-3
+
+    # the field of all agents: every agent binned, in each projection
+    if dim == 2:
+        images = {"xy": batches["/world/field"]}
+    else:
+        images = {plane: batches[f"/field/{plane}"] for plane in ("xy", "xz", "yz")}
+    for plane, field in images.items():
+        assert _last(field, "agents") == [n], plane
+        (fmt,) = _last(field, "SegmentationImage:format")
+        assert 0 < fmt["width"] <= 32 and 0 < fmt["height"] <= 32
+        (image,) = _last(field, "SegmentationImage:buffer")
+        assert np.count_nonzero(np.asarray(image)) > 0, plane
