@@ -72,7 +72,7 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
             for shot in shots:
                 time.sleep(settle_s)
                 shot.parent.mkdir(parents=True, exist_ok=True)
-                page.screenshot(path=str(shot), timeout=120_000)
+                page.screenshot(path=str(shot), timeout=timeout_s * 1000)
         finally:
             browser.close()
     for shot in shots:
@@ -83,13 +83,18 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
 def _wait_until_loaded(page, timeout_s: float, quiet_s: float = 6.0) -> None:
     """Wait until the page has stopped receiving data: the viewer streams the file over gRPC, and while it loads
     the canvas changes every frame. Taken as loaded once two screenshots `quiet_s` apart are identical (the
-    viewer follows the newest step while data arrives, then stops there), or after `timeout_s`."""
+    viewer follows the newest step while data arrives, then stops there), or after `timeout_s`. A screenshot that
+    does not come within what is left of `timeout_s` (software WebGL on a busy machine) counts as not loaded yet."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     deadline = time.monotonic() + timeout_s
-    time.sleep(quiet_s)
-    last = page.screenshot(timeout=120_000)
+    last = None
     while time.monotonic() < deadline:
         time.sleep(quiet_s)
-        now = page.screenshot(timeout=120_000)
+        try:
+            now = page.screenshot(timeout=max(1.0, deadline - time.monotonic()) * 1000)
+        except PlaywrightTimeout:
+            continue
         if now == last:
             return
         last = now
