@@ -66,6 +66,8 @@ def test_defaults() -> None:
         "every": 1,
         "max_agents": 2000,
         "max_edges": 4000,
+        "field": -1,
+        "trail": 0,
         "metrics_every": 1,
     }
     assert load_config(model="vicsek") == config == load_config({})

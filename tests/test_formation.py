@@ -421,7 +421,11 @@ def test_frame_draws_va_and_rules(engine):
     frame = model.frame(selected, 100)
     state = model.state()
     assert np.allclose(frame.positions, state["x"][selected], atol=1e-4)
-    assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]), atol=1e-5)
+    # arrows: the velocity of the step just made over |vout| (tflock.frame's convention)
+    relative = state["speed"][selected] / p.out_speed
+    assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]) * relative, atol=1e-5)
+    assert np.allclose(frame.directions[:, 1], np.sin(state["theta"][selected]) * relative, atol=1e-5)
+    assert frame.ids.tolist() == selected.tolist()
     (marker,) = frame.markers
     assert marker.name == "virtual_agent" and marker.circle == p.vair
     assert np.allclose(marker.position, rf.va_position(3, p))

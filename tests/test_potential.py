@@ -224,7 +224,7 @@ def test_frame_draws_the_graph(engine):
     assert frame.positions.shape == (12, 2) and frame.colors.shape == (12, 3) and frame.edges.shape == (12, 2, 2)
     x = model.state()["x"]
     assert np.allclose(frame.positions, x, atol=1e-6)
-    assert np.allclose(frame.edges[0], x[[0, 1]], atol=1e-6)
+    assert np.allclose(frame.edges[0], x[[1, 0]], atol=1e-6)  # from the later drawn agent to the earlier
     cfg = config(n=60, box=5.0, dim=3, topology="switching")
     model = Potential(cfg.params, cfg.seed, engine)
     frame = model.frame(np.arange(0, 60, 2), 50)

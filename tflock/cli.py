@@ -260,15 +260,24 @@ def config_show(model: Annotated[str, typer.Argument(help="Model name (see `tflo
 def view(
     path: Annotated[Path, typer.Argument(help="Recording (.rrd).")],
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on localhost (no display needed).")] = False,
-    port: Annotated[int, typer.Option(help="Web viewer port.")] = 9090,
+    port: Annotated[int | None, typer.Option(help="Web viewer port (default: a free one).")] = None,
+    grpc_port: Annotated[int | None, typer.Option(help="Data port of --web (default: a free one).")] = None,
+    screenshot: Annotated[Path | None, typer.Option(
+        help="Save a PNG of the web viewer showing the recording (headless Chromium; needs playwright).")] = None,
 ) -> None:
-    """Open a recording in the Rerun viewer."""
+    """Open a recording in the Rerun viewer, or save a screenshot of it."""
     from tflock.record import open_viewer
 
     if not path.is_file():
         fail(f"recording not found: {path}")
     try:
-        open_viewer(path, web=web, port=port)
+        if screenshot is not None:
+            from tflock.screenshot import take_screenshots
+
+            take_screenshots(path, [screenshot])
+            out.print(str(screenshot))
+            return
+        open_viewer(path, web=web, port=port, grpc_port=grpc_port)
     except (RuntimeError, OSError) as e:
         fail(str(e))
     except KeyboardInterrupt:

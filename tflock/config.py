@@ -155,7 +155,11 @@ class LogConfig(BaseModel):
         description="agents drawn per frame, >= 0: the same seeded subset every frame; "
         "metrics always use all agents",
     )
-    max_edges: Int = Field(4000, ge=0, description="neighbour edges drawn per frame, >= 0")
+    max_edges: Int = Field(4000, ge=0, description="neighbour edges drawn per frame (among the drawn agents), >= 0")
+    field: Int = Field(-1, ge=-1, le=1024, description="pixels a side of the field of all agents drawn with each "
+                       "frame when not all agents are drawn, in [-1, 1024]; -1 = by N (64 to 256), 0 = none")
+    trail: Int = Field(0, ge=0, le=1000, description="positions of each drawn agent's trail, in [0, 1000]; "
+                       "0 = no trails")
     metrics_every: Int = Field(1, ge=1, description="compute and log the metrics every k steps, k >= 1")
 
     @field_validator("out")

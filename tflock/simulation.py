@@ -93,6 +93,18 @@ def drawn_subset(n: int, max_agents: int, seed: int) -> np.ndarray:
     return np.sort(np.argpartition(keys, max_agents)[:max_agents])
 
 
+def field_pixels(n: int, drawn: int, setting: int) -> int:
+    """Pixels a side of the field of all agents in each frame (log.field): none when every agent is drawn, else
+    the setting, or for -1 :func:`tflock.field.field_size` of n."""
+    if drawn >= n or setting == 0:
+        return 0
+    if setting < 0:
+        from tflock.field import field_size
+
+        return field_size(n)
+    return setting
+
+
 CHECKPOINT_FORMAT = 1
 
 
@@ -212,6 +224,7 @@ class Simulation:
             self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
+        self._field_size = field_pixels(config.params.n, len(self._selected), config.log.field)
         self.files: list[Path] = []
         self.recording_id = uuid.uuid4().hex
         self.checkpoint_path = checkpoint
@@ -236,11 +249,14 @@ class Simulation:
         from tflock.record import Recorder
 
         table = path.with_suffix(".metrics.csv") if path is not None else None
+        n, log = self.config.params.n, self.config.log
+        drawn = f"{len(self._selected)} of {n} agents drawn (the same seeded subset every frame)"
         with np.errstate(over="ignore"):  # a box beyond the float32 range of the drawing: its outline is at inf
             self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
                                      world=self.model.world(), metrics=self.model.metric_descriptions,
                                      path=path, spawn=spawn, connect=connect, metrics_table=table,
-                                     recording_id=self.recording_id)
+                                     recording_id=self.recording_id, legend=self.model.color_legend,
+                                     field=self._field_size > 0, trail=log.trail, drawn=drawn)
         self.files = [p for p in (path, table) if p is not None]
 
     def _metrics_due(self, t: int) -> bool:
@@ -262,7 +278,7 @@ class Simulation:
             if self.recorder is not None:
                 self.recorder.log_metrics(t, values)
         if self.recorder is not None and (force or self._frame_due(t)):
-            self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges))
+            self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges, self._field_size))
 
     def step(self, steps: int = 1, progress: Callable[[int], None] | None = None) -> None:
         """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.

@@ -34,7 +34,8 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
-from tflock.frame import Frame, WorldSpec, color_table, look_up
+from tflock.field import VECTORS
+from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
 from tflock.metrics import BLOCK, EXACT_PAIRS_MAX, NeighbourGraph, n_blocks, total
 from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
@@ -60,7 +61,8 @@ PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
 LAMBDA2_MAX = 1000
 
-_SPEED_RAMP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=np.float64)
+#: slow to fast: blue, sky, green, yellow, red; every stop bright enough to see on the viewer's dark background
+_SPEED_RAMP = np.array([[96, 110, 255], [0, 190, 255], [40, 215, 110], [240, 215, 40], [255, 80, 60]], dtype=np.float64)
 
 
 def potential_np(r2: np.ndarray, d2: float) -> np.ndarray:
@@ -81,8 +83,9 @@ _SPEED_PALETTE = color_table(_speed_palette(_SPEED_LEVELS))
 
 
 def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
-    """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow), looked up in a
-    table of 1024 levels, within one level of each channel of the ramp itself (one gather, no per-agent maths)."""
+    """(M, 3) uint8: speed / scale in [0, 1] on a ramp from blue (slow) over green and yellow to red (fast), looked
+    up in a table of 1024 levels, within one level of each channel of the ramp itself (one gather, no per-agent
+    maths)."""
     t = np.clip(np.asarray(speed, dtype=np.float32) * np.float32(1.0 / scale), 0.0, 1.0)
     return look_up(_SPEED_PALETTE, np.rint(t * np.float32(_SPEED_LEVELS - 1)).astype(np.int64))
 
@@ -579,12 +582,14 @@ class Potential(GridModel):
                     self.pos, self.vel, out)
         return out.astype(np.float64)
 
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by speed, velocity arrows, and the interaction graph's edges (the fixed graph, or the
-        current switching one)."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by speed, velocity arrows, and the interaction graph's edges among the drawn agents (the
+        fixed graph, or the current switching one)."""
         p, dim = self.params, self.dim
+        grid = None
         if self.switching:  # the drawing's grid, built for the edges, gives the rows too
             drawing = self.drawing(selected)
+            grid = self.grid
             drawn = self._rows_written(drawing)  # by the lane-wise step, for a frame draw_next announced
             if drawn is None:
                 drawn = np.zeros((2, len(selected), dim), dtype=self.engine.real)
@@ -593,34 +598,48 @@ class Potential(GridModel):
                     _drawn_gather(len(selected), dim, drawing.slot, self.grid.order, self.grid.pos_sorted, self.vel,
                                   drawn)
             pos, vel = drawn[0], drawn[1]
-            edges = drawing.edges(p.box, p.radius, max_edges, positions=pos)
+            edges = self._edges_among(pos, max_edges, p.radius)
         else:
             rows = self._rows(selected)
             pos, vel = rows[:, :dim], rows[:, dim:]
             edges = self._fixed_edges(selected, pos, max_edges)
-        with np.errstate(over="ignore"):  # an f64 run on its way to a fault exceeds float32 first: drawn as inf
+        with np.errstate(over="ignore", invalid="ignore"):  # an f64 run on its way to a fault exceeds float32 first
             return Frame(
                 positions=np.asarray(pos, dtype=np.float32),
-                directions=np.asarray(vel, dtype=np.float32),
-                arrow_length=p.desired_distance / p.speed,
+                directions=np.asarray(vel / p.speed, dtype=np.float32),
+                arrow_length=arrow_length(p.box, len(selected), dim),
                 colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
                 edges=np.asarray(edges, dtype=np.float32),
-                radius=0.1 * p.desired_distance,
+                ids=selected,
+                fields=self._field_images(field_size, self.pos, self.vel, VECTORS, grid),
             )
 
+    @property
+    def color_legend(self) -> ColorLegend:
+        """The speed ramp's colours at five speeds from 0 to the initial speed bound (faster agents: its end)."""
+        speed = self.params.speed
+        stops = np.linspace(0.0, speed, 5)
+        colors = speed_colors(stops, speed)
+        labels = [f"|v| = {v:.3g}" for v in stops[:-1]] + [f"|v| >= {speed:.3g}"]
+        return ColorLegend("agents: speed |v|", entries=tuple(
+            (label, (int(c[0]), int(c[1]), int(c[2]))) for label, c in zip(labels, colors, strict=True)))
+
     def _fixed_edges(self, selected: np.ndarray, pos: np.ndarray, max_edges: int) -> np.ndarray:
-        """Edges of the fixed graph from each drawn agent (in id order) to its neighbours, at most max_edges."""
-        mask = np.zeros(self.params.n, dtype=bool)
-        mask[selected] = True
-        a, b = self.edges[:, 0], self.edges[:, 1]
-        keep = mask[a] | mask[b]
-        a, b = a[keep], b[keep]
-        order = np.lexsort((np.maximum(a, b), np.minimum(a, b)))[:max_edges]
-        a, b = a[order], b[order]
-        ends = np.unique(np.concatenate([a, b]))
-        rows = self._rows(ends)[:, : self.dim]
-        return np.stack([rows[np.searchsorted(ends, a)], rows[np.searchsorted(ends, b)]], axis=1).reshape(
-            -1, 2, self.dim)
+        """Edges of the fixed graph among the drawn agents: the graph induced on the first K of them (in id order),
+        K as large as max_edges allows, as the switching topology's :class:`~tflock.neighbors.DrawnEdges`."""
+        rank = np.full(self.params.n, -1, dtype=np.int64)
+        rank[selected] = np.arange(len(selected))
+        ra, rb = rank[self.edges[:, 0]], rank[self.edges[:, 1]]
+        keep = (ra >= 0) & (rb >= 0)
+        ra, rb = ra[keep], rb[keep]
+        later = np.maximum(ra, rb)  # an edge belongs to its later row, as DrawnEdges counts them
+        order = np.lexsort((np.minimum(ra, rb), later))
+        ra, rb, later = ra[order], rb[order], later[order]
+        per_row = np.bincount(later, minlength=len(selected)).cumsum() if len(later) else np.zeros(0, np.int64)
+        rows = int(np.searchsorted(per_row, max_edges, side="right"))
+        count = int(per_row[rows - 1]) if rows else 0
+        ra, rb = ra[:count], rb[:count]
+        return np.stack([pos[np.maximum(ra, rb)], pos[np.minimum(ra, rb)]], axis=1).reshape(-1, 2, self.dim)
 
     def world(self) -> WorldSpec:
         return WorldSpec(dim=self.dim, boundary="open", box=self.params.box, dt=self.dt)

@@ -35,7 +35,8 @@ import taichi as ti
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, sin_cos
-from tflock.frame import Frame, WorldSpec, angle_colors
+from tflock.field import ANGLES, UNIT_VECTORS
+from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
 from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
@@ -774,8 +775,9 @@ class Vicsek(GridModel):
             out["leader_error"] = gap / (n - 1) if n > 1 else np.zeros(replicas)
         return {name: out[name] for name in self.metric_descriptions}
 
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by heading; with asynchrony, those that did not update at this step are dimmed."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by heading, arrows along it (the heading of the step just made); with asynchrony,
+        those that did not update at this step are dimmed."""
         p = self.params
         drawing = self.drawing(selected)
         grid = self.grid
@@ -795,15 +797,20 @@ class Vicsek(GridModel):
             x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
+        if self.lane_wise:  # the step keeps cos and sin of every heading
+            fields = self._field_images(field_size, self.pos, self.trig, UNIT_VECTORS, grid)
+        else:
+            fields = self._field_images(field_size, self.pos, self.theta, ANGLES, grid)
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
-            arrow_length=0.5 * p.radius,
+            arrow_length=arrow_length(p.box, len(selected)),
             colors=colors,
-            edges=drawing.edges(p.box, p.radius, max_edges, positions=drawn[0]).astype(np.float32),
+            edges=self._edges_among(drawn[0], max_edges, p.radius),
             leader=leader,
             leader_direction=leader_direction,
-            radius=0.15 * p.radius,
+            ids=selected,
+            fields=fields,
         )
 
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
