@@ -249,7 +249,8 @@ def _written(sim: Any) -> None:
     import taichi as ti
 
     ti.sync()
-    sim.recorder.flush()
+    if sim.recorder is not None:
+        sim.recorder.flush()
 
 
 @dataclass

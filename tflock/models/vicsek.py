@@ -756,6 +756,8 @@ class Vicsek(GridModel):
 
     def replica_metrics(self) -> dict[str, np.ndarray]:
         """:meth:`metrics` of each replica of a batch: one array of length ``replicas`` per metric."""
+        if self.components is not None:  # a batch of one: the lone model's lane-wise metrics
+            return {name: np.array([value]) for name, value in self.metrics().items()}
         p = self.params
         self._ensure_grid()
         replicas, n = self.replicas, p.n
