@@ -49,6 +49,21 @@ def adjacency(x: np.ndarray, radius: float, boundary: str, box: float) -> np.nda
     return a
 
 
+def topological_adjacency(x: np.ndarray, k: int, boundary: str, box: float) -> np.ndarray:
+    """A[i, j] = j is one of the k agents nearest to i (j != i; Ballerini et al. 2008), distances by the boundary's
+    metric, ties broken by the smaller agent id; squared distances computed in the dtype of x, as the kernel does."""
+    d = displacements(x, boundary, box)
+    d2 = (d * d).sum(axis=2)
+    n = len(x)
+    ids = np.arange(n)
+    a = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        others = ids != i
+        order = np.lexsort((ids[others], d2[i, others]))  # by distance, then by id
+        a[i, ids[others][order[:k]]] = True
+    return a
+
+
 def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
     """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
     x = x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
