@@ -59,6 +59,13 @@ def test_vicsek_batch_with_leader_and_asynchrony(engine):
     assert_batch_matches_lone_runs(cfg, engine)
 
 
+@pytest.mark.parametrize("boundary", ["periodic", "open"])
+def test_vicsek_batch_topological_vectorial(engine, boundary):
+    cfg = config("vicsek", n=30, box=4.0, noise=0.5, boundary=boundary, neighbours="topological", k=6,
+                 noise_type="vectorial")
+    assert_batch_matches_lone_runs(cfg, engine)
+
+
 @pytest.mark.parametrize("boundary", ["open", "periodic"])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_adaptive_batch_equals_lone_runs(engine, boundary, dim):

@@ -64,6 +64,27 @@ def topological_adjacency(x: np.ndarray, k: int, boundary: str, box: float) -> n
     return a
 
 
+def neighbour_matrix(x: np.ndarray, params: VicsekParams) -> np.ndarray:
+    """The neighbours of every agent by ``params.neighbours``: metric (within R) or topological (k nearest)."""
+    if params.neighbours == "topological":
+        return topological_adjacency(x, params.k, params.boundary, params.box)
+    return adjacency(x, params.radius, params.boundary, params.box)
+
+
+def unit_noise(seed: int, t: int, n: int, dim: int, dtype: type) -> np.ndarray:
+    """Random unit vectors of the vectorial noise at step t, one per agent: at angle 2 pi u in 2D
+    (u from ``Stream.NOISE``); uniform on the sphere in 3D (z = 1 - 2u, azimuth 2 pi v from ``Stream.NOISE_2``)."""
+    ids = np.arange(n)
+    u = uniform_np(seed, t, ids, Stream.NOISE).astype(dtype)
+    if dim == 2:
+        psi = dtype(TWO_PI) * u
+        return np.stack([np.cos(psi), np.sin(psi)], axis=1)
+    z = 1 - 2 * u
+    azimuth = dtype(TWO_PI) * uniform_np(seed, t, ids, Stream.NOISE_2).astype(dtype)
+    r = np.sqrt(np.maximum(0, 1 - z * z))
+    return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
+
+
 def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
     """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
     x = x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
@@ -79,13 +100,19 @@ def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: flo
     return x, theta
 
 
-def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: VicsekParams) -> np.ndarray:
+def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: VicsekParams, t: int = 0,
+                 seed: int = 0) -> np.ndarray:
     """phi_i of 003 eqs. (8)-(10) (Jadbabaie eqs. 2, 17): a[i, j] = 1 when j is a neighbour of i, seen[i, j] the
-    heading of j that i uses (theta_j, or theta_j(tau) with delays)."""
+    heading of j that i uses (theta_j, or theta_j(tau) with delays). With vectorial noise (Gregoire-Chate) the
+    unit vector of step t, weighted by eta (1 + n_i), joins the vector rule's sum."""
     count = a.sum(axis=1)
     if params.rule == "vector":  # 003 eq. (10)
         sx = (a * np.cos(seen)).sum(axis=1) + np.cos(theta)
         sy = (a * np.sin(seen)).sum(axis=1) + np.sin(theta)
+        if params.noise_type == "vectorial":
+            weight = theta.dtype.type(params.noise) * (1 + count)
+            xi = unit_noise(seed, t, len(theta), 2, theta.dtype.type)
+            sx, sy = sx + weight * xi[:, 0], sy + weight * xi[:, 1]
         return wrap_pi(np.arctan2(sy, sx) - theta)
     if params.rule == "average":  # 003 eq. (8), Jadbabaie eq. (2)
         return (theta + (a * seen).sum(axis=1)) / (1 + count) - theta
@@ -95,17 +122,21 @@ def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: Vic
 
 
 def turn_and_noise(theta: np.ndarray, phi: np.ndarray, t: int, params: VicsekParams, seed: int) -> np.ndarray:
-    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2], headings wrapped into [0, 2 pi)."""
+    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2] (angular noise; vectorial noise is in phi),
+    headings wrapped into [0, 2 pi)."""
     alpha = math.radians(params.max_turn_deg)
-    xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
+    xi = 0.0
+    if params.noise_type == "angular":
+        xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
     return wrap_two_pi((theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype))
 
 
 def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
-    """One synchronous step t -> t+1 of the Vicsek family (DESIGN.md 3.1); returns (x, theta) at t+1."""
-    a = adjacency(x, params.radius, params.boundary, params.box).astype(x.dtype)
+    """One synchronous step t -> t+1 of the Vicsek family in 2D (DESIGN.md 3.1), metric or topological
+    neighbours, angular or vectorial noise; returns (x, theta) at t+1."""
+    a = neighbour_matrix(x, params).astype(x.dtype)
     seen = np.broadcast_to(theta, a.shape)
-    new = turn_and_noise(theta, desired_turn(theta, a, seen, params), t, params, seed)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen, params, t, seed), t, params, seed)
     if params.leader.enabled:
         new[0] = theta[0]
     return move(x, new, params.speed, params.boundary, params.box)
@@ -145,7 +176,7 @@ def vicsek_step_async(hist_x: np.ndarray, hist_theta: np.ndarray, omega: np.ndar
     r = x.dtype.type(params.radius)
     a = ((d * d).sum(axis=2) <= r * r).astype(x.dtype)
     np.fill_diagonal(a, 0)
-    new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params), t, params, seed)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params, t, seed), t, params, seed)
     new = np.where(update, new, theta).astype(theta.dtype)
     x_new, theta_new = move(x, new, params.speed, params.boundary, params.box)
     hist_x, hist_theta = hist_x.copy(), hist_theta.copy()
