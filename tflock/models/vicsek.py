@@ -490,6 +490,14 @@ class Vicsek(GridModel):
     def can_batch(cls, params: VicsekParams) -> bool:
         return params.n <= EXACT_PAIRS_MAX
 
+    def __new__(cls, params: VicsekParams, *args, **kwargs):
+        """``params.dim = 3`` builds the 3D model, :class:`tflock.models.vicsek3d.Vicsek3D`."""
+        if params.dim == 3:
+            from tflock.models.vicsek3d import Vicsek3D
+
+            return Vicsek3D(params, *args, **kwargs)
+        return super().__new__(cls)
+
     def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo, force_async: bool = False,
                  replicas: int = 1) -> None:
         """`force_async` runs the asynchronous kernel even for B = 1 (it must reproduce the synchronous one)."""

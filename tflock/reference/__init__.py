@@ -85,9 +85,10 @@ def unit_noise(seed: int, t: int, n: int, dim: int, dtype: type) -> np.ndarray:
     return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
 
 
-def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
-    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
-    x = x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
+def apply_boundary(x: np.ndarray, boundary: str, box: float) -> tuple[np.ndarray, np.ndarray]:
+    """Positions after a move, wrapped into [0, box) (periodic) or mirrored at the walls (reflecting), and the mask
+    of the mirrored coordinates (whose velocity component changes sign)."""
+    flip = np.zeros(x.shape, dtype=bool)
     if boundary == "periodic":
         x = x - box * np.floor(x / box)
         x = np.where((x >= box) | (x < 0), 0.0, x).astype(x.dtype)
@@ -95,6 +96,13 @@ def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: flo
         low, high = x < 0, x > box
         x = np.where(low, -x, np.where(high, 2 * box - x, x)).astype(x.dtype)
         flip = low | high
+    return x, flip
+
+
+def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
+    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
+    x, flip = apply_boundary(x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1), boundary, box)
+    if boundary == "reflecting":
         theta = np.where(flip[:, 0], math.pi - theta, theta)
         theta = wrap_two_pi(np.where(flip[:, 1], -theta, theta).astype(x.dtype))
     return x, theta
