@@ -119,6 +119,10 @@ def test_metrics_match_reference(engine, boundary, bound):
         assert got[name] == pytest.approx(expected[name], abs=1e-12), name
     for name in ("polarization", "leader_error", "e_d", "e_theta", "de_theta", "updated"):
         assert got[name] == pytest.approx(expected[name], rel=1e-5, abs=1e-5), name
+    observables = [name for name in got if name.startswith(("gnf_", "band_"))]
+    assert len(observables) == (0 if boundary == "open" else 6)  # exponent, std in 4, 8, 16 boxes a side, bands
+    for name in observables:  # integer box and slab counts: the same agents in the same boxes
+        assert got[name] == pytest.approx(expected[name], rel=1e-12), name
     assert math.cos(got["mean_heading"] - expected["mean_heading"]) == pytest.approx(1.0, abs=1e-8)
 
 

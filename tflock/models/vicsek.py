@@ -65,6 +65,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.observables import TransitionObservables
 from tflock.reference import wrap_pi as wrap_pi_np
 from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, replica_key, uniform_np, uniform_ti
 from tflock.space import (
@@ -524,6 +525,8 @@ class Vicsek(GridModel):
         }
         if params.leader.enabled:
             self.metric_descriptions["leader_error"] = "mean |heading - leader heading| of followers (rad)"
+        self.observables = TransitionObservables(params.n, 2, params.boundary, params.box, params.radius, replicas)
+        self.metric_descriptions.update(self.observables.descriptions)
         self.asynchronous = force_async or params.async_bound > 1
         bound = params.async_bound
         ftype = ti.f32 if real == np.float32 else ti.f64
@@ -669,6 +672,8 @@ class Vicsek(GridModel):
         out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
+        heading = np.array([[math.cos(mean_heading), math.sin(mean_heading)]])
+        out.update({k: float(v[0]) for k, v in self.observables.compute(self.pos, self.ids, heading).items()})
         return {name: out[name] for name in self.metric_descriptions}
 
     def replica_metrics(self) -> dict[str, np.ndarray]:
@@ -690,6 +695,7 @@ class Vicsek(GridModel):
         if p.leader.enabled:
             gap = np.abs(wrap_pi_np(theta[:, 1:] - theta[:, :1])).sum(axis=1)
             out["leader_error"] = gap / (n - 1) if n > 1 else np.zeros(replicas)
+        out.update(self.observables.compute(self.pos, self.ids, np.stack([c, s], axis=1)))
         return {name: out[name] for name in self.metric_descriptions}
 
     def frame(self, selected: np.ndarray, max_edges: int) -> Frame:

@@ -33,6 +33,7 @@ from tflock.metrics import BLOCK, NeighbourGraph, mean, n_blocks
 from tflock.models.adaptive import cone_noise
 from tflock.models.base import GridModel
 from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
+from tflock.observables import TransitionObservables
 from tflock.reference.adaptive import initial_draws
 from tflock.rng import Stream, replica_key, uniform_ti
 from tflock.space import OPEN, PERIODIC, REFLECTING, displacement, reflect, wrap_periodic
@@ -184,6 +185,8 @@ class Vicsek3D(GridModel):
             "largest_cluster": "largest cluster fraction S",
             "de_theta": "de_theta mean angle turned per step (rad)",
         }
+        self.observables = TransitionObservables(params.n, 3, params.boundary, params.box, params.radius, replicas)
+        self.metric_descriptions.update(self.observables.descriptions)
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.pos = ti.ndarray(ftype, (3, n))  # component-major, as every kernel array
         self.dirs = ti.ndarray(ftype, (3, n))
@@ -253,6 +256,7 @@ class Vicsek3D(GridModel):
         out = {"polarization": float(np.linalg.norm(total) / p.n)}
         out.update(self.graph.compute(p.radius, p.box))
         out["de_theta"] = mean(self.turn, p.n)
+        out.update({k: float(v[0]) for k, v in self.observables.compute(self.pos, self.ids, total[None]).items()})
         return {name: out[name] for name in self.metric_descriptions}
 
     def replica_metrics(self) -> dict[str, np.ndarray]:
@@ -262,10 +266,12 @@ class Vicsek3D(GridModel):
         replicas, n = self.replicas, p.n
         d = np.empty((self.n_total, 3))
         d[self.ids.to_numpy()] = self.dirs.to_numpy().T
-        out = {"polarization": np.linalg.norm(d.reshape(replicas, n, 3).mean(axis=1), axis=1)}
+        mean_d = d.reshape(replicas, n, 3).mean(axis=1)
+        out = {"polarization": np.linalg.norm(mean_d, axis=1)}
         out.update(self.graph.compute_replicas(p.radius, p.box))
         # turn is in the arrangement's order, the last grid's slots: replica-major, as the grid's buckets
         out["de_theta"] = self.turn.to_numpy().astype(np.float64).reshape(replicas, n).mean(axis=1)
+        out.update(self.observables.compute(self.pos, self.ids, mean_d))
         return {name: out[name] for name in self.metric_descriptions}
 
     # ------------------------------------------------------------------ drawing

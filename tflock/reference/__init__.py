@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from tflock.config import VicsekParams
+from tflock.reference.observables import transition_metrics_np
 from tflock.rng import Stream, bernoulli_np, hash_np, pair_hash_np, randint_np, uniform_np
 
 TWO_PI = 2 * math.pi
@@ -247,4 +248,6 @@ def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams, previ
     if params.leader.enabled:
         th = theta.astype(np.float64)
         out["leader_error"] = float(np.abs(wrap_pi(th[1:] - th[0])).mean()) if len(th) > 1 else 0.0
+    direction = np.array([math.cos(mean_heading), math.sin(mean_heading)])
+    out.update(transition_metrics_np(x, direction, params.boundary, params.box, params.radius))
     return out

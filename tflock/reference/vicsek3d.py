@@ -13,6 +13,7 @@ import numpy as np
 from tflock.config import VicsekParams
 from tflock.reference import apply_boundary, graph_metrics, neighbour_matrix, unit_noise
 from tflock.reference.adaptive import add_noise, initial_draws, orthonormal_basis
+from tflock.reference.observables import transition_metrics_np
 
 
 def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
@@ -59,10 +60,12 @@ def vicsek3d_step(x: np.ndarray, d: np.ndarray, t: int, params: VicsekParams, se
 
 
 def vicsek3d_metrics(x: np.ndarray, d: np.ndarray, previous_d: np.ndarray, params: VicsekParams) -> dict[str, float]:
-    """Polarization |mean d|, the R-graph metrics and the mean angle turned at the last step."""
+    """Polarization |mean d|, the R-graph metrics, the mean angle turned at the last step and the transition's
+    observables."""
     d64, p64 = d.astype(np.float64), previous_d.astype(np.float64)
     cos_turn = np.clip((d64 * p64).sum(axis=1) / np.linalg.norm(d64, axis=1) / np.linalg.norm(p64, axis=1), -1, 1)
     out = {"polarization": float(np.linalg.norm(d64.mean(axis=0)))}
     out.update(graph_metrics(x, params.radius, params.boundary, params.box))
     out["de_theta"] = float(np.arccos(cos_turn).mean())
+    out.update(transition_metrics_np(x, d64.mean(axis=0), params.boundary, params.box, params.radius))
     return out
