@@ -130,3 +130,32 @@ def test_a_sweep_point_reaches_the_binder_limits(cpu_engine):
     rows = run_point({**base, "steps": 20, "params": {**base["params"], "noise": 0.0}}, replicas=2, seed=1)
     assert rows[1]["binder_polarization_pooled"] == pytest.approx(2 / 3, abs=1e-6)
 
+
+def test_a_recording_carries_the_band_profile(cpu_engine, tmp_path):
+    """A periodic Vicsek run logs the density profile as a bar chart per frame, in units of the mean density, and
+    the band and number-fluctuation metrics as series; an open-space run has none of them."""
+    from rerun.chunk import RrdReader
+
+    import tflock
+    from tflock.record import read_recording
+
+    path = tmp_path / "bands.rrd"
+    sim = tflock.Simulation(model="vicsek", params={"n": 500, "box": 16.0, "noise": 0.3}, steps=4,
+                            engine={"precision": cpu_engine.precision}, record=path)
+    sim.run()
+    sim.close()
+    summary = read_recording(path)
+    assert "/profiles/band_profile" in summary.entities
+    assert {"band_peaks", "band_contrast", "gnf_exponent", "gnf_std_4"} <= set(summary.final_metrics)
+    charts = []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == "/profiles/band_profile" and chunk.num_rows:
+            batch = chunk.to_record_batch()
+            charts += [np.asarray(v[0]["buffer"]) for v in batch.column("BarChart:values").to_pylist() if v]
+    assert len(charts) == summary.frames
+    assert all(len(c) == 16 and c.mean() == pytest.approx(1.0, rel=1e-6) for c in charts)  # slabs of side R = 1
+
+    sim = tflock.Simulation(model="vicsek", params={"n": 50, "boundary": "open"}, steps=2,
+                            engine={"precision": cpu_engine.precision})
+    assert not any(name.startswith(("band_", "gnf_")) for name in sim.model.metric_descriptions)
+    assert sim.model.profile_descriptions == {}

@@ -65,6 +65,7 @@ class Frame:
     radius: float = 0.3  # point radius in scene units
     leader_direction: np.ndarray | None = None  # (dim,) leader heading; drawn as an arrow when given
     markers: list[Marker] = field(default_factory=list)  # other objects, each at world/<name> (same set each frame)
+    profiles: dict[str, np.ndarray] = field(default_factory=dict)  # 1D series of all agents, e.g. a density profile
 
 
 #: steps of the hue wheel: 256 per sixth, one per 8-bit colour level

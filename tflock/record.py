@@ -8,6 +8,8 @@ metric values); the recorder lays them out as described in DESIGN.md section 5:
 * ``world/agents`` (Points2D/3D), ``world/agents/headings`` (Arrows2D/3D), ``world/edges`` (LineStrips2D/3D),
   ``world/leader`` (+ ``world/leader/heading``), ``world/bounds`` (static);
 * ``metrics/<name>``: one Scalars series per metric with a static SeriesLines naming it;
+* ``profiles/<name>``: a BarChart per drawn frame for each 1D profile the model declares (e.g. the density along
+  the mean heading, which shows travelling bands);
 * ``config`` (static markdown TextDocument holding the resolved TOML) and ``meta`` (static AnyValues);
 * a default blueprint: the world view beside stacked time-series views and the config.
 
@@ -62,6 +64,7 @@ BOUNDS = "world/bounds"
 CONFIG = "config"
 META = "meta"
 METRICS = "metrics"
+PROFILES = "profiles"
 
 SPAWN_PORT = 9876
 LEADER_COLOR = (255, 255, 255)
@@ -156,6 +159,7 @@ class Recorder:
         config_toml: str,
         world: WorldSpec,
         metrics: Mapping[str, str],
+        profiles: Mapping[str, str] | None = None,
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,
@@ -176,6 +180,7 @@ class Recorder:
         self.config_toml = config_toml
         self.world = world
         self.metrics = dict(metrics)
+        self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
         self._closed = False
@@ -223,6 +228,7 @@ class Recorder:
         else:
             world_view = rrb.Spatial3DView(name="world", origin="/world")
         plots = [rrb.TimeSeriesView(name=n, origin=f"/{METRICS}/{n}") for n in self.metrics]
+        plots += [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
         config_view = rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")
         if len(plots) > 4:
             right = rrb.Vertical(rrb.Grid(*plots, grid_columns=2), config_view, row_shares=[4, 1])
@@ -333,6 +339,8 @@ class Recorder:
                 self._leader_heading_drawn = True
         for marker in frame.markers:
             self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
+        for name, values in frame.profiles.items():
+            rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
 
     def _log_marker(self, marker: Marker, Points: type, Arrows: type, Strips: type, radius: float,
                     arrow_length: float) -> None:

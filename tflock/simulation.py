@@ -173,6 +173,7 @@ class Simulation:
         table = path.with_suffix(".metrics.csv") if path is not None else None
         self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
                                  world=self.model.world(), metrics=self.model.metric_descriptions,
+                                 profiles=self.model.profile_descriptions,
                                  path=path, spawn=spawn, connect=connect, metrics_table=table,
                                  recording_id=self.recording_id)
         self.files = [p for p in (path, table) if p is not None]

@@ -26,6 +26,8 @@ class Model(ABC):
                                         "vel": "velocity", "phi": "velocity"}
     #: metric name -> one-line description, in the order the metrics table uses
     metric_descriptions: Mapping[str, str]
+    #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
+    profile_descriptions: Mapping[str, str] = {}
 
     @classmethod
     def can_batch(cls, params) -> bool:

@@ -527,6 +527,7 @@ class Vicsek(GridModel):
             self.metric_descriptions["leader_error"] = "mean |heading - leader heading| of followers (rad)"
         self.observables = TransitionObservables(params.n, 2, params.boundary, params.box, params.radius, replicas)
         self.metric_descriptions.update(self.observables.descriptions)
+        self.profile_descriptions = self.observables.profile_descriptions
         self.asynchronous = force_async or params.async_bound > 1
         bound = params.async_bound
         ftype = ti.f32 if real == np.float32 else ti.f64
@@ -719,6 +720,8 @@ class Vicsek(GridModel):
             x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
+        heading = heading_order(self.theta, p.n)[1] if self.observables.enabled else 0.0
+        profiles = self.observables.frame_profiles(self.pos, self.ids, np.array([math.cos(heading), math.sin(heading)]))
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
@@ -728,6 +731,7 @@ class Vicsek(GridModel):
             leader=leader,
             leader_direction=leader_direction,
             radius=0.15 * p.radius,
+            profiles=profiles,
         )
 
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:

@@ -187,6 +187,7 @@ class Vicsek3D(GridModel):
         }
         self.observables = TransitionObservables(params.n, 3, params.boundary, params.box, params.radius, replicas)
         self.metric_descriptions.update(self.observables.descriptions)
+        self.profile_descriptions = self.observables.profile_descriptions
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.pos = ti.ndarray(ftype, (3, n))  # component-major, as every kernel array
         self.dirs = ti.ndarray(ftype, (3, n))
@@ -284,12 +285,17 @@ class Vicsek3D(GridModel):
         if m:
             drawing.locate()
             _frame_rows(m, drawing.slot, self.grid.order, self.grid.pos_sorted, self.dirs, rows)
+        profiles = {}
+        if self.observables.enabled:
+            _direction_sums(p.n, self.dirs, self.partial)
+            profiles = self.observables.frame_profiles(self.pos, self.ids, self.partial.to_numpy().sum(axis=0))
         return Frame(
             positions=rows[:, :3].astype(np.float32),
             directions=rows[:, 3:].astype(np.float32),
             arrow_length=0.5 * p.radius,
             edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
             radius=0.15 * p.radius,
+            profiles=profiles,
         )
 
     def world(self) -> WorldSpec:
