@@ -159,3 +159,20 @@ def test_a_recording_carries_the_band_profile(cpu_engine, tmp_path):
                             engine={"precision": cpu_engine.precision})
     assert not any(name.startswith(("band_", "gnf_")) for name in sim.model.metric_descriptions)
     assert sim.model.profile_descriptions == {}
+
+
+def test_giant_number_fluctuations_of_the_ordered_vicsek_phase(cpu_engine):
+    """Chate et al. (2008): deep in the ordered phase of the 2D Vicsek model (density 2, v0 = 0.5) the number
+    fluctuations are giant, Delta N ~ <N>^0.8; a disordered swarm (eta = 2 pi) has Poisson ones, a = 1/2."""
+    import tflock
+
+    exponents = {}
+    for noise in (0.3, 2 * math.pi):
+        sim = tflock.Simulation(model="vicsek", params={"n": 2048, "box": 32.0, "noise": noise}, steps=600, seed=1,
+                                log={"metrics_every": 50}, engine={"precision": cpu_engine.precision})
+        sim.run()
+        table = sim.metrics()
+        exponents[noise] = float(np.mean(table["gnf_exponent"][-6:]))  # steps 350-600
+        assert (table["polarization"][-1] > 0.9) == (noise < 1)
+    assert exponents[0.3] == pytest.approx(0.8, abs=0.08)
+    assert exponents[2 * math.pi] == pytest.approx(0.5, abs=0.06)
