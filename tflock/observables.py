@@ -13,7 +13,7 @@
   the count against its mean <N> grows as <N>^a: a = 1/2 for independent agents, about 0.8 in the ordered phase
   of the 2D Vicsek model (Chate et al. 2008). :func:`number_fluctuations` gives Delta N per M and the fitted a.
 - **Bands**: the density profile along the box axis nearest to the mean heading (:func:`axis_profile`, a 1D
-  histogram in a kernel, bins of side at least R), smoothed over BAND_SMOOTHING bins; :func:`band_statistics`
+  histogram in a kernel, L // R bins, 8 to PROFILE_BINS), smoothed over BAND_SMOOTHING bins; :func:`band_statistics`
   counts its peaks (runs of bins above BAND_THRESHOLD times the mean density; circular in a periodic box) and its
   contrast (largest minus smallest smoothed density, in units of the mean). Travelling bands near the threshold
   give one peak or more; a homogeneous state, ordered or not, gives none.
@@ -161,7 +161,7 @@ def band_statistics(hist: np.ndarray, periodic: bool) -> tuple[float, float, np.
 
 
 def profile_bins(box: float, radius: float) -> int:
-    """Slabs of the band profile: of side at least R, at most PROFILE_BINS, at least 8."""
+    """Slabs of the band profile: L // R (slabs of side about R), at most PROFILE_BINS, at least 8."""
     return int(min(PROFILE_BINS, max(8, box // radius)))
 
 
