@@ -101,3 +101,27 @@ def assert_one_error_line(result: Any, *needles: str) -> str:
     for needle in needles:
         assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
     return lines[0]
+
+
+def tflock_process(cwd: Path, *args: str) -> Any:
+    """`python -m tflock ARGS` started in `cwd` (stdout and stderr to files there), with this checkout first on
+    the path."""
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(repo), os.environ.get("PYTHONPATH")]))}
+    with open(cwd / "stdout.txt", "w") as stdout, open(cwd / "stderr.txt", "w") as stderr:
+        return subprocess.Popen([sys.executable, "-m", "tflock", *args], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
+                                stdout=stdout, stderr=stderr)
+
+
+def wait_for_rows(proc: Any, table: Path, rows: int, timeout: float = 120.0) -> None:
+    """Wait until a running `tflock sim` has written `rows` rows to its metrics table (its step loop runs)."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not (table.is_file() and table.read_text(encoding="utf-8").count("\n") > rows):
+        assert proc.poll() is None, f"sim exited early with {proc.returncode}"
+        assert time.monotonic() < deadline, f"{table} did not reach {rows} rows within {timeout} s"
+        time.sleep(0.05)

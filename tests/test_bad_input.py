@@ -129,6 +129,7 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     checkpoint_file(root / "badtoml.npz", config_toml="model = [[[")
     checkpoint_file(root / "badconfig.npz", config_toml='model = "vicsek"\n[params]\nn = -5\n')
     checkpoint_file(root / "mismatch.npz", config_toml=SMALL_TOML, **{"model__pos": np.zeros((2, 7))})
+    checkpoint_file(root / "at3.npz", config_toml=SMALL_TOML)  # a run at step 3
     whole = (root / "mismatch.npz").read_bytes()
     (root / "truncated.npz").write_bytes(whole[: len(whole) // 2])
     with open(root / "array.npz", "wb") as file:
@@ -279,9 +280,13 @@ MODEL_PARAMS = [
 ]
 
 SIM_OPTIONS = [
-    (["--steps", "-1"], ["steps", "must be >= 0", "-1"]),
+    (["--steps", "-1"], ["steps", "must be between 0 and 2147483647", "-1"]),
     (["--steps", "abc"], ["--steps", "valid integer", "sim --help"]),
     (["--steps", "1.5"], ["--steps", "valid integer"]),
+    (["--steps", str(2**31)], ["steps", "between 0 and 2147483647", str(2**31)]),  # the kernels' 32-bit counter
+    (["--steps", str(2**62)], ["steps", "between 0 and 2147483647", str(2**62)]),
+    (["--steps", str(2**63)], ["steps", "between 0 and 2147483647", str(2**63)]),
+    (["--set", "steps=1e30"], ["steps", "between 0 and 2147483647"]),
     (["--steps"], ["--steps", "requires an argument"]),
     (["--seed", "-1"], ["seed", "between 0 and 4294967295", "-1"]),
     (["--seed", "4294967296"], ["seed", "between 0 and 4294967295"]),
@@ -344,7 +349,7 @@ CONFIG_FILES = [
     ("model_unknown.toml", ["model", "must be one of", "boids"]),
     ("params_int.toml", ["params", "expected a table"]),
     ("engine_string.toml", ["engine", "expected a table", "'cpu'"]),
-    ("steps_negative.toml", ["steps", ">= 0", "-5"]),
+    ("steps_negative.toml", ["steps", "between 0 and 2147483647", "-5"]),
     ("huge_n.toml", ["params.n", "<= 2147483647"]),
     ("alpha_nan.toml", ["params.alpha", "nan"]),
     ("alpha_neginf.toml", ["params.alpha", "-inf"]),
@@ -370,6 +375,8 @@ RESUMES = [
     (["--resume", "notes.txt", "--config", "empty.toml"], ["--resume"]),
     (["--resume", "notes.txt", "--seed", "3"], ["--resume"]),
     (["--resume", "notes.txt", "--set", "params.n=5"], ["--resume", "only --steps"]),
+    (["--resume", "at3.npz", "--steps", "3"], ["--steps", "checkpoint is at step 3", "nothing to run", "> 3"]),
+    (["--resume", "at3.npz", "--steps", "1", "--out", "r.rrd"], ["--steps", "would end at step 1", "nothing to run"]),
 ]
 
 OUTPUTS = [
@@ -442,6 +449,13 @@ OTHER_COMMANDS = [
     (["inspect", "garbage.rrd"], ["cannot read", "garbage.rrd"]),
     (["inspect", "notes.txt"], ["notes.txt"]),
     (["inspect", "mismatch.npz"], ["mismatch.npz"]),
+    (["repair"], ["Missing argument", "repair --help"]),
+    (["repair", "missing.rrd"], ["recording not found", "missing.rrd"]),
+    (["repair", "out_dir.rrd"], ["out_dir.rrd is not a file"]),
+    (["repair", "empty.rrd"], ["empty.rrd is empty", "nothing to recover"]),
+    (["repair", "garbage.rrd"], ["garbage.rrd is not a Rerun recording"]),
+    (["repair", "notes.txt"], ["notes.txt is not a Rerun recording"]),
+    (["repair", "garbage.rrd", "--out", "x.txt"], ["--out", ".rrd", "x.txt"]),
     (["view"], ["Missing argument", "view --help"]),
     (["view", "missing.rrd"], ["recording not found", "missing.rrd"]),
     (["view", "out_dir.rrd"], ["recording not found", "out_dir.rrd"]),
@@ -552,9 +566,15 @@ def _beyond(kind: str, side: str, bound: float) -> st.SearchStrategy[Any]:
 
 @st.composite
 def bad_key_values(draw: st.DrawFn) -> tuple[str, str, Any]:
-    """A (model, key, value) that the key's schema must refuse: of the wrong type, non-finite, non-integral, out
-    of range or not among the allowed words."""
+    """A (model, key, value) that the key's schema must refuse (see :func:`bad_value`)."""
     model, key, field = draw(st.sampled_from(KEYS))
+    return model, key, draw(bad_value(key, field))
+
+
+@st.composite
+def bad_value(draw: st.DrawFn, key: str, field: Any) -> Any:
+    """A value of `key` that its schema must refuse: of the wrong type, non-finite, non-integral, out of range or
+    not among the allowed words."""
     kind = _kind(field)
     words = st.text(st.characters(codec="utf-8", exclude_categories=("Cs",)), max_size=12)
     wrong_type = st.one_of(words, st.lists(st.integers(), max_size=3))
@@ -576,7 +596,7 @@ def bad_key_values(draw: st.DrawFn) -> tuple[str, str, Any]:
         value = draw(st.one_of(words, st.integers(-10, 10), st.floats()).filter(lambda v: v not in allowed))
     else:  # strings: log.out must name a .rrd; potential's graph_file must be a string
         value = draw(st.one_of(st.integers(), st.booleans(), st.lists(st.integers(), max_size=2)))
-    return model, key, value
+    return value
 
 
 @GENERATED
@@ -686,7 +706,14 @@ def run_entry_point(*args: str, cwd: Path, env: dict[str, str] | None = None) ->
     ["sim", "--out", "afile/x.rrd"],
     ["sim", "--resume", "fake.npz"],
     ["inspect", "garbage.rrd"],
-], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect"])
+    ["repair", "garbage.rrd"],
+    # beyond the float range of f32: the start state is refused, and NumPy's overflow warnings are not printed
+    ["sim", "--model", "vicsek", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "adaptive", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "potential", "--set", "params.box=1e39", "--set", "params.n=100", "--no-log"],
+    ["sim", "--model", "formation", "--set", "params.world=1e39", "--set", "params.n=10", "--no-log"],
+], ids=["usage", "nan", "huge-n", "unwritable", "resume", "inspect", "repair", "f32-box-vicsek", "f32-box-adaptive",
+        "f32-box-potential", "f32-world-formation"])
 def test_entry_point_prints_one_line(workdir: Path, args: list[str]) -> None:
     before = listing(workdir)
     assert_entry_point_refuses(run_entry_point(*args, cwd=workdir))

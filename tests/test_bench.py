@@ -28,8 +28,9 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
         assert r["ms_min"] <= r["ms_median"] <= r["ms_max"]
         assert r["agent_steps_per_s"] == pytest.approx(r["case"]["n"] / r["ms_median"] * 1e3)
         assert r["build_ms"] > 0 and r["interactions_ms"] >= 0 and r["metrics_ms"] > 0 and r["logging_ms"] > 0
-        assert r["logged_ms_median"] > 0
-        assert r["logging_overhead"] > -1.0  # its definition is checked in test_logging_overhead_pairs_turns
+        assert r["run_ms_min"] <= r["run_ms_median"] <= r["run_ms_max"]
+        assert r["run_overhead"] > -1.0  # defined as test_runs_pair_turns checks
+        assert r["logged_ms_min"] <= r["logged_ms_median"] <= r["logged_ms_max"] and r["logging_overhead"] > -1.0
         assert r["mean_neighbors"] > 0 and r["first_step_s"] > 0
         assert 50 < r["device_bytes_per_agent"] < 400 and r["peak_rss_mb"] > 0
         assert set(r["peers"]) == {"numpy_reference", "ckdtree_sparse"} | ({"numba_cells"} if HAS_NUMBA else set())
@@ -42,7 +43,7 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
     assert len(rows) == 4 and "ckdtree_sparse_ratio" in rows[0]
     assert not HAS_NUMBA or {"numba_cells_ms", "numba_cells_ratio", "numba_cells_first_call_s"} <= set(rows[0])
     assert prefix.with_suffix(".png").stat().st_size > 10_000
-    assert "agent-steps/s" in proc.stdout
+    assert "agent-steps/s" in proc.stdout and "run ms/step" in proc.stdout and "logged run" in proc.stdout
 
 
 @pytest.mark.parametrize("args,key", [(["--sizes", "0"], "--sizes"), (["--models", "boids"], "--models"),
@@ -115,18 +116,27 @@ def test_numba_peer_is_the_reference_vicsek_step(n, box):
     assert np.abs(xi).max() <= eta / 2 + 1e-9 and xi.std() > 0.5 * eta / math.sqrt(12)
 
 
-def test_logging_overhead_pairs_turns(monkeypatch):
-    """Turns of plain steps and a logging run, all from the case's state: the overhead compares each logging run with
-    its own turn's plain steps (here the machine drifts between turns, plain steps of 4 to 16 ms, and a logging run
-    takes 1.5 times its turn's plain step, 2.5 times in one turn hit by a slow spell)."""
-    import time
+@pytest.mark.parametrize("log", [False, True])
+def test_runs_pair_turns(monkeypatch, log):
+    """Turns of plain steps and runs (and logged runs), all from the case's state: each run is compared with its own
+    turn's plain steps, and a logged run with its turn's run. Here the machine drifts between turns (plain steps of 4
+    to 16 ms); a run with metrics every step takes 1.25 times its turn's plain step, a logged one 1.5 times the run
+    (2.5 times in one turn hit by a slow spell)."""
+    import types
 
     import taichi as ti
 
     from tflock import bench
 
     pace = iter([(4, 1.5), (16, 1.5), (4, 1.5), (16, 2.5), (8, 1.5), (16, 1.5), (4, 1.5), (8, 1.5)])
-    state = {"ms": 0.0, "factor": 1.0, "restores": 0, "starts": set()}  # this turn's ms per plain step, and so on
+    state = {"ms": 0.0, "factor": 1.0, "restores": 0, "starts": set(), "metrics_every": set()}
+    clock = [0.0]  # the bench's perf_counter: steps take their time without sleeping
+
+    def spend(ms):
+        clock[0] += ms / 1e3
+
+    class Log:
+        every = metrics_every = bench.METRICS_NEVER
 
     class Model:
         step_index = 7
@@ -136,7 +146,7 @@ def test_logging_overhead_pairs_turns(monkeypatch):
 
         def restore(self, arrays, step):
             state["starts"].add(step)
-            if state["restores"] % 2 == 0:  # a new turn
+            if state["restores"] % (3 if log else 2) == 0:  # a turn: plain steps, a run (and a logged run)
                 state["ms"], state["factor"] = next(pace)
             state["restores"] += 1
 
@@ -144,20 +154,34 @@ def test_logging_overhead_pairs_turns(monkeypatch):
             pass
 
         def advance(self, steps):
-            time.sleep(state["ms"] * steps / 1e3)
+            spend(state["ms"] * steps)
+
+    class Config:
+        log = Log()
 
     class Sim:
-        model = Model()
+        model, config = Model(), Config()
 
         def step(self, steps):
-            time.sleep(state["factor"] * state["ms"] * steps / 1e3)
+            state["metrics_every"].add(self.config.log.metrics_every)
+            frames = self.config.log.every == 1
+            spend(1.25 * (state["factor"] if frames else 1.0) * state["ms"] * steps)
 
     monkeypatch.setattr(bench, "_written", lambda sim: None)
     monkeypatch.setattr(ti, "sync", lambda: None)
-    plain, logged, overhead = bench._plain_and_logged_steps(Sim(), repeats=3)
-    assert len(plain) == 3 * bench.LOG_TURNS == 24 and state["starts"] == {7}  # every turn from the case's state
-    assert overhead == pytest.approx(0.5, abs=0.05)
-    assert logged == pytest.approx(1.5 * 8, rel=0.1)  # the logging runs' median: 6 6 6 12 12 24 24 40 ms a step
+    monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
+    sim = Sim()
+    turns = bench._plain_and_run_steps(sim, repeats=3, metrics_every=1, log=log)
+    assert len(turns.plain) == 3 * bench.LOG_TURNS == 24 and state["starts"] == {7}  # every turn from the state
+    assert state["metrics_every"] == {1} and sim.config.log.metrics_every == bench.METRICS_NEVER
+    if log:
+        assert turns.logging_overhead == pytest.approx(0.5, abs=1e-9)
+        assert turns.logged == pytest.approx(1.25 * 1.5 * 8, rel=1e-9)  # median of 7.5 7.5 7.5 15 15 30 30 50 ms
+        assert turns.logged_range == pytest.approx((7.5, 50.0))
+    else:
+        assert turns.logged is None and turns.logging_overhead is None
+    assert turns.run_overhead == pytest.approx(0.25, abs=1e-9)
+    assert turns.run == pytest.approx(1.25 * 8, rel=1e-9) and turns.run_range == pytest.approx((5.0, 20.0))
 
 
 def test_results_go_under_results_bench_by_default():

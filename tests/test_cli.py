@@ -234,7 +234,7 @@ BAD_INPUT = [
     pytest.param(["--arch", "tpu"], ["engine.arch", "tpu", "cpu, cuda, vulkan, auto"], id="unknown-arch"),
     pytest.param(["--arch", "vulkan", "--set", "engine.precision=f64"], ["engine.precision", "f64", "vulkan", "f32"],
                  id="vulkan-f64"),
-    pytest.param(["--steps", "-1"], ["steps", "must be >= 0", "-1"], id="steps-negative"),
+    pytest.param(["--steps", "-1"], ["steps", "must be between 0 and 2147483647", "-1"], id="steps-negative"),
     pytest.param(["--set", "params"], ["--set", "key=value", "params"], id="set-without-value"),
     pytest.param(["--model", "nosuch"], ["model", "nosuch", "vicsek"], id="unknown-model"),
 ]

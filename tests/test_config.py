@@ -62,6 +62,7 @@ def test_defaults() -> None:
         "dim": 2,
         "neighbours": "metric",
         "k": 6,
+        "wrap_headings": True,
     }
     assert config.engine.model_dump() == {"arch": "cpu", "threads": 0, "precision": "f32"}
     assert config.log.model_dump() == {
@@ -69,6 +70,8 @@ def test_defaults() -> None:
         "every": 1,
         "max_agents": 2000,
         "max_edges": 4000,
+        "field": -1,
+        "trail": 0,
         "metrics_every": 1,
     }
     assert load_config(model="vicsek") == config == load_config({})
@@ -245,7 +248,7 @@ def test_laplacian_with_large_g_is_valid() -> None:
         (["params.rule=mean"], "params.rule: must be one of vector, average, relative, laplacian, got 'me"),
         (["seed=-1"], "seed: must be between 0 and 4294967295, got -1"),
         (["seed=4294967296"], "seed: must be between 0 and 4294967295, got 4294967296"),
-        (["steps=-1"], "steps: must be >= 0, got -1"),
+        (["steps=-1"], "steps: must be between 0 and 2147483647, got -1"),
         (["log.every=0"], "log.every: must be >= 1, got 0"),
         (["params.async_bound=0"], "params.async_bound: must be between 1 and 1000, got 0"),
         (["params.async_bound=1001"], "params.async_bound: must be between 1 and 1000, got 1001"),
@@ -302,7 +305,7 @@ def test_open_space_allows_any_speed() -> None:
 
 def test_several_errors_report_the_first_and_count_the_rest() -> None:
     message = config_error(overrides=["params.n=0", "params.radius=0", "steps=-1"])
-    assert message == "steps: must be >= 0, got -1 (and 2 more)"
+    assert message == "steps: must be between 0 and 2147483647, got -1 (and 2 more)"
 
 
 def test_unknown_model() -> None:

@@ -119,3 +119,16 @@ def test_run_replicas_equals_simulations(cpu_engine, model, params, monkeypatch)
         np.testing.assert_array_equal(table["step"], [0, 4, 8, 12])
         for name, column in expected.items():
             np.testing.assert_allclose(table[name], column, rtol=METRIC_RTOL, atol=1e-12, err_msg=name)
+
+
+def test_a_batch_that_turns_non_finite_stops_naming_the_replica(cpu_engine):
+    """The non-finite guard of a lone run also watches a batch, at its metrics steps: agents flying at nearly the
+    largest float leave the float range at step 2, found at the metrics step after it, in replica 0 (the first)."""
+    from tflock.simulation import NumericalFaultError
+
+    largest = np.finfo(np.float32 if PRECISION == "f32" else np.float64).max
+    cfg = config("vicsek", n=10, boundary="open", box=1.0, speed=float(0.9 * largest)).model_copy(
+        update={"steps": 6, "log": config("vicsek").log.model_copy(update={"metrics_every": 3})})
+    with pytest.raises(NumericalFaultError, match=r"^numerical fault in vicsek at step 3: replica 0 \(seed 11\), "
+                       r"agent \d+ has a non-finite position \(the replicas are checked every log.metrics_every = 3"):
+        run_replicas(cfg, REPLICAS)

@@ -15,9 +15,10 @@ from conftest import ARCH, PRECISION
 
 from tflock.config import ConfigError, default_config_toml, load_config
 from tflock.models.formation import CAP, CAP_BEYOND, TURN_MARGIN, Formation, capped_turn, sparse_cells, unit_force
-from tflock.models.formation_params import FAILED, INSIDE, OUTSIDE, SEPARATION, STRATEGIES
+from tflock.models.formation_params import FAILED, INSIDE, OUTSIDE, RAMP_STREAM, SEPARATION, STRATEGIES
 from tflock.reference import formation as rf
 from tflock.reference import wrap_pi
+from tflock.rng import uniform_np
 
 F64 = PRECISION == "f64"
 TOL = 1e-10 if F64 else 2e-4
@@ -259,17 +260,70 @@ def test_entering_ramp_is_linear(engine):
     x = rf.va_position(0, p) + [25.2, 0.0]
     model.set_state({"x": x[None, :], "theta": np.array([math.pi])}, 0)
     speeds = []
-    for _ in range(80):
+    for _ in range(140):
         model.advance(1)
         speeds.append(float(model.state()["speed"][0]))
     state = model.state()
     start = int(state["ramp_start"][0])
-    duration = p.vair / (p.out_speed - p.va_speed)  # T with rnd = 0: the VAIR at the closing speed on the VA
+    duration = 2 * p.vair / (p.out_speed - p.va_speed)  # T with rnd = 0: the VAIR at half the closing speed
     assert state["ramp_duration"][0] == pytest.approx(duration)
     for t, v in enumerate(speeds):
         expected = p.out_speed - (p.out_speed - p.va_speed) * min(1.0, max(0.0, (t + 1 - start) / duration))
         assert v == pytest.approx(expected, abs=ATOL)
     assert speeds[-1] == p.va_speed
+
+
+def ramp_gain(duration, closing):
+    """Depth a ramp of `duration` gains on the VA, in whole steps: the speed for the move t_s + k - 1 -> t_s + k is
+    |va| + closing (1 - min(1, k / duration)), so the gain is closing (K - K (K + 1) / (2 duration)), K = floor."""
+    k = math.floor(duration)
+    return closing * (k - k * (k + 1) / (2 * duration))
+
+
+def test_ramp_time_stops_a_lone_agent_anywhere_on_the_vair_diameter():
+    # the closed form behind T = 2 VAIR / (|vout| - |va|): an agent that enters from straight behind at the
+    # boundary and ramps for T stops at the VA; with gamma = T the ramp lasts U(0, 2T) and the stopping point
+    # covers the VAIR's diameter, behind the VA and in front of it, uniformly (eqs. 1-2, "a homogeneous
+    # distribution of agents inside the VAIR")
+    p = params()
+    closing = p.out_speed - p.va_speed
+    assert p.ramp_time == pytest.approx(125.0)
+    assert ramp_gain(p.ramp_time, closing) == pytest.approx(p.vair, abs=closing)  # reaches the VA, to half a step
+    durations = np.linspace(1.0, 2 * p.ramp_time, 2001)[1:-1]  # uniform in (0, 2T); max(1, .) is the floor
+    rest = p.vair - np.array([ramp_gain(d, closing) for d in durations])  # distance behind the VA at rest
+    assert rest.max() == pytest.approx(p.vair, abs=0.5) and rest.min() == pytest.approx(-p.vair, abs=0.5)
+    assert np.mean(rest < 0) == pytest.approx(0.5, abs=0.01)  # as often in front of the VA as behind
+    assert np.histogram(rest, bins=5, range=(-p.vair, p.vair))[0].min() > 0.18 * len(rest)  # spread evenly
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_lone_agent_comes_to_rest_where_the_ramp_closed_form_says(engine, seed):
+    # one agent straight behind the VA, heading with it, no neighbour: no force turns it (Fcv and Fav point along
+    # its heading), so it closes on the VA at |vout| - |va| until it crosses the VAIR, then eq. (1) slows it over
+    # dt = max(1, T + rnd) with rnd ~ U(-T, T) drawn at the crossing step; afterwards it keeps its place. Its
+    # offset from the VA at rest is the entry distance less the ramp's gain, in the kernel and the reference
+    # (seeds 0, 3, 4 draw short ramps and stop behind the VA; 1, 2, 5 long ones and stop in front of it)
+    p = params(n=1, va_heading_deg=0.0)  # heading 0: the VA's path and the agent's stay on one grid row
+    closing = p.out_speed - p.va_speed
+    start = {"x": (rf.va_position(0, p) - [p.vair + 0.3, 0.0])[None, :], "theta": np.zeros(1)}
+    entry = 1  # 25.3 bl behind at step 0, 24.9 at step 1: inside from step 1
+    u = float(uniform_np(seed, entry, np.zeros(1, dtype=np.int64), RAMP_STREAM)[0])
+    duration = max(1.0, p.ramp_time * (1 + p.ramp_jitter * (2 * u - 1)))
+    behind = p.vair + 0.3 - closing * entry - ramp_gain(duration, closing)  # > 0 behind the VA, < 0 in front
+    steps = int(duration) + 5
+    model = Formation(p, seed, engine)
+    model.set_state(start, 0)  # outside the VAIR: settled at |vout|
+    model.advance(steps)
+    state = {**start, "speed": np.full(1, p.out_speed), "inside": np.zeros(1, dtype=np.int32),
+             "ramp_from": np.full(1, p.out_speed), "ramp_start": np.zeros(1, dtype=np.int32),
+             "ramp_duration": np.ones(1)}
+    for t in range(steps):
+        state, _ = rf.formation_step(state, t, p, seed)
+    for got, tol in ((model.state(), 1e-9 if F64 else 5e-3), (state, 1e-9)):
+        assert int(got["ramp_start"][0]) == entry and got["ramp_duration"][0] == pytest.approx(duration, rel=1e-6)
+        offset = rf.to_va(np.asarray(got["x"], dtype=np.float64), steps, p)[0]  # agent -> VA
+        assert offset[0] == pytest.approx(behind, abs=tol) and abs(offset[1]) < tol
+        assert float(got["speed"][0]) == pytest.approx(p.va_speed)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -367,7 +421,11 @@ def test_frame_draws_va_and_rules(engine):
     frame = model.frame(selected, 100)
     state = model.state()
     assert np.allclose(frame.positions, state["x"][selected], atol=1e-4)
-    assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]), atol=1e-5)
+    # arrows: the velocity of the step just made over |vout| (tflock.frame's convention)
+    relative = state["speed"][selected] / p.out_speed
+    assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]) * relative, atol=1e-5)
+    assert np.allclose(frame.directions[:, 1], np.sin(state["theta"][selected]) * relative, atol=1e-5)
+    assert frame.ids.tolist() == selected.tolist()
     (marker,) = frame.markers
     assert marker.name == "virtual_agent" and marker.circle == p.vair
     assert np.allclose(marker.position, rf.va_position(3, p))

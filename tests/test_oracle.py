@@ -261,3 +261,52 @@ def test_topological_neighbours_ignore_the_radius(engine):
         runs.append(model.state())
     assert heading_gap(runs[0]["theta"], runs[1]["theta"]) < TOL
     assert position_gap(runs[0]["x"], runs[1]["x"], "periodic", 12.0) < TOL
+
+
+@pytest.mark.parametrize("bound", [1, 4])
+@pytest.mark.parametrize("rule", ["average", "vector"])
+def test_real_headings_match_reference(engine, rule, bound):
+    """wrap_headings = false (the other reading of Samiloglu section 3): headings stay real numbers after the
+    update and after a wall reflection, in the synchronous (lane-wise) and asynchronous kernels alike; compared
+    without wrapping, so a kernel that wrapped would fail."""
+    cfg = vicsek_config(rule, "reflecting", n=250, **{"params.wrap_headings": False, "params.async_bound": bound})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    state = model.state()
+    outside = 0
+    for t in range(40):
+        if bound == 1:
+            expected_x, expected_theta = ref.vicsek_step(state["x"], state["theta"], t, cfg.params, cfg.seed)
+            model.set_state(state, t)
+            state = {"x": expected_x, "theta": expected_theta}
+        else:
+            ring = bound + 1
+            model.set_state({"x": state["history_x"][t % ring], "theta": state["history_theta"][t % ring],
+                             "history_x": state["history_x"], "history_theta": state["history_theta"],
+                             "omega": state["omega"]}, t)
+            hist_x, hist_theta, omega, _ = ref.vicsek_step_async(state["history_x"], state["history_theta"],
+                                                                 state["omega"], t, cfg.params, cfg.seed)
+            state = {"history_x": hist_x, "history_theta": hist_theta, "omega": omega,
+                     "x": hist_x[(t + 1) % ring], "theta": hist_theta[(t + 1) % ring]}
+        model.advance(1)
+        got = model.state()["theta"].astype(np.float64)
+        assert np.abs(got - state["theta"]).max() < TOL, f"theta differs at step {t}"
+        outside += int(((got < 0) | (got >= 2 * math.pi)).sum())
+    assert outside > 0  # headings left [0, 2 pi): nothing wrapped them
+
+
+def test_real_headings_with_topological_neighbours(engine):
+    """wrap_headings = false with topological neighbours (the topological step's own update): headings stay real
+    numbers, compared without wrapping."""
+    cfg = vicsek_config("average", "reflecting", n=250, **TOPOLOGICAL, **{"params.wrap_headings": False})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    state = model.state()
+    outside = 0
+    for t in range(30):
+        expected_x, expected_theta = ref.vicsek_step(state["x"], state["theta"], t, cfg.params, cfg.seed)
+        model.set_state(state, t)
+        model.advance(1)
+        got = model.state()["theta"].astype(np.float64)
+        assert np.abs(got - expected_theta).max() < TOL, f"theta differs at step {t}"
+        outside += int(((got < 0) | (got >= 2 * math.pi)).sum())
+        state = {"x": expected_x, "theta": expected_theta}
+    assert outside > 0  # headings left [0, 2 pi): nothing wrapped them

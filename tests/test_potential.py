@@ -89,6 +89,27 @@ def test_initial_state_follows_section_6():
     assert np.linalg.norm(s3["v"], axis=1).max() < 2 and abs(s3["v"].mean(axis=0)).max() < 0.2
 
 
+@pytest.mark.parametrize("box", [30.0, 1e39])
+def test_placement_grid_finds_every_close_pair_in_any_box(box):
+    """The placement's hashed grid (cells widened for a box too wide for 64-bit cell keys, such as params.box =
+    1e39 at f64) flags exactly the candidates a brute-force pass flags: within the separation of a placed agent or
+    of a candidate with a smaller id."""
+    from tflock.models.potential_graphs import _too_close
+
+    rng = np.random.default_rng(5)
+    n, separation = 600, 0.5
+    x = rng.uniform(-box / 2, box / 2, (n, 3))
+    x[1::7] = x[0::7][: len(x[1::7])] + rng.uniform(-0.3, 0.3, (len(x[1::7]), 3))  # planted close pairs
+    placed = rng.random(n) < 0.5
+    candidates = np.flatnonzero(~placed)
+    d2 = ((x[:, None] - x[None]) ** 2).sum(-1)
+    ids = np.arange(n)
+    near = (d2 < separation**2) & (ids[:, None] != ids[None]) & (placed[None] | (ids[None] < ids[:, None]))
+    want = near[candidates].any(axis=1)
+    assert want.sum() > 20
+    np.testing.assert_array_equal(_too_close(x, candidates, placed, separation), want)
+
+
 def test_graph_families():
     n = 9
     for graph, n_edges in [("complete", 36), ("path", 8), ("ring", 9), ("tree", 8)]:
@@ -203,7 +224,7 @@ def test_frame_draws_the_graph(engine):
     assert frame.positions.shape == (12, 2) and frame.colors.shape == (12, 3) and frame.edges.shape == (12, 2, 2)
     x = model.state()["x"]
     assert np.allclose(frame.positions, x, atol=1e-6)
-    assert np.allclose(frame.edges[0], x[[0, 1]], atol=1e-6)
+    assert np.allclose(frame.edges[0], x[[1, 0]], atol=1e-6)  # from the later drawn agent to the earlier
     cfg = config(n=60, box=5.0, dim=3, topology="switching")
     model = Potential(cfg.params, cfg.seed, engine)
     frame = model.frame(np.arange(0, 60, 2), 50)

@@ -341,3 +341,192 @@ def test_markers_are_drawn_on_their_own_entities(tmp_path: Path) -> None:
     summary = read_recording(path)
     for entity in ("/world/virtual_agent", "/world/virtual_agent/heading", "/world/virtual_agent/range"):
         assert entity in summary.entities
+
+
+def _chunks(path: Path) -> dict[str, list]:
+    """Record batches of each entity of a recording (blueprint excluded)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.num_rows and not chunk.entity_path.startswith("/__"):
+            out.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    return out
+
+
+def _last(batches: list, column: str) -> object:
+    """The value of `column` in the row with the highest step (static rows count as step -1)."""
+    best, value = None, None
+    for batch in batches:
+        if column not in batch.schema.names:
+            continue
+        steps = batch.column("step").to_pylist() if "step" in batch.schema.names else [-1] * batch.num_rows
+        for s, v in zip(steps, batch.column(column).to_pylist(), strict=True):
+            if v is not None and (best is None or s >= best):
+                best, value = s, v
+    return value
+
+
+def test_simulation_recording_content(make_sim, tmp_path: Path) -> None:
+    """What a person sees, read back from a run's file: drawn agents with their ids, edges among drawn agents only,
+    the field of all agents (its pixels' total is N and it equals the NumPy reference of the final state), the
+    y-flip, the legend, the layout's grouped plots and the trails."""
+    from tflock.field import reference_field
+    from tflock.record import point_radius
+
+    path = tmp_path / "run.rrd"
+    n, box = 3000, 30.0
+    sim = make_sim(model="vicsek", params={"n": n, "box": box, "radius": 1.5}, steps=6, record=path,
+                   log={"max_agents": 600, "max_edges": 150, "field": 16, "trail": 4})
+    sim.run()
+    selected, state, cells = sim._selected, sim.state(), sim.model.grid.geometry
+    sim.close()
+    assert verify_recording(path)
+    summary = read_recording(path)
+    assert summary.frames == 7
+    batches = _chunks(path)
+    pos = np.array(_last(batches["/world/agents"], "Points2D:positions"))
+    np.testing.assert_allclose(pos, state["x"][selected], atol=1e-4)
+    assert _last(batches["/world/agents"], "Points2D:labels") == [f"agent {i}" for i in selected]
+    assert _last(batches["/world/agents"], "Points2D:radii") == pytest.approx([-point_radius(600)])  # UI points
+    # edges: between drawn agents only (the far end up to the periodic box), at most the cap
+    strips = _last(batches["/world/edges"], "LineStrips2D:strips")
+    assert 0 < len(strips) <= 150
+    for start, end in (np.array(s) for s in strips):
+        assert np.min(np.linalg.norm(pos - start, axis=1)) < 1e-4
+        gap = pos - end
+        gap -= box * np.round(gap / box)
+        assert np.min(np.linalg.norm(gap, axis=1)) < 1e-4
+        assert np.linalg.norm(end - start) <= 1.5 + 1e-4
+    # the field: every agent in it, the reference's classes from the final state
+    field = batches["/world/field"]
+    assert _last(field, "agents") == [n]
+    (image,) = _last(field, "SegmentationImage:buffer")  # one image a row
+    (fmt,) = _last(field, "SegmentationImage:format")
+    classes = np.asarray(image, dtype=np.uint8).reshape(fmt["height"], fmt["width"])
+    # pixels of whole cells of the model's grid: 20 cells of 1.5 a side, 2 x 2 a pixel for at most 16 pixels
+    assert cells.cells_per_side == 20
+    expected, counts = reference_field(state["x"], state["theta"], np.zeros(2), cells.cell_size, 20, k=2)
+    assert counts.sum() == n
+    np.testing.assert_array_equal(classes, expected[0])
+    assert _last(field, "Transform3D:scale") == [pytest.approx([3.0, 3.0, 1.0])]
+    assert len(_last(field, "AnnotationContext:context")[0]) == 241  # a colour and label per class
+    # y up, the legend, trails, the about document
+    assert _last(batches["/world"], "Transform3D:scale") == [[1.0, -1.0, 1.0]]
+    assert "/legend/wheel" in batches and "/legend/field" in batches
+    trails = _last(batches["/world/agents/trails"], "LineStrips2D:strips")
+    assert len(trails) == 600 and all(len(t) == 4 for t in trails)
+    (about,) = _last(batches["/about"], "TextDocument:text")
+    assert "| neighbors | max | `max_neighbors` |" in about and "field" in about
+
+
+def test_metric_groups_and_constant_series(tmp_path: Path) -> None:
+    from tflock.record import metric_groups
+
+    names = ["speed_mean", "speed_spread", "valency_min", "valency_max", "valency_0", "valency_1", "mean_neighbors",
+             "max_neighbors", "kinetic_energy", "potential_energy", "connected", "mean_heading"]
+    groups = metric_groups(names)
+    assert groups == {
+        "speed_mean": [("speed_mean", "speed_mean")],
+        "speed_spread": [("speed_spread", "speed_spread")],
+        "valency": [("valency_min", "min"), ("valency_max", "max"), ("valency_0", "agent 0"),
+                    ("valency_1", "agent 1")],
+        "neighbors": [("mean_neighbors", "mean"), ("max_neighbors", "max")],
+        "energy": [("kinetic_energy", "kinetic"), ("potential_energy", "potential")],
+        "connected": [("connected", "connected")],
+        "mean_heading": [("mean_heading", "mean_heading")],
+    }
+    path = tmp_path / "constant.rrd"
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS, path=path) as rec:
+        for step in range(3):
+            rec.log_metrics(step, {"order": 0.5, "speed": float(step)})
+        assert rec.constant_metrics() == ("order",)
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    layouts = [" ".join(str(c.to_record_batch().to_pylist()) for c in reader.stream(store=store))
+               for store in reader.blueprints()]
+    # the layout is sent again at the end, with the constant series apart
+    assert len(layouts) == 2 and sorted("constant: order" in text for text in layouts) == [False, True]
+
+
+#: (model, params, reference speed's parameter) of the read-back test of every model's content; small N, few steps
+MODEL_CASES = [
+    ("adaptive", {"n": 1500, "dim": 3, "box": 8.0, "radius": 1.0}, "speed"),
+    ("potential", {"n": 1500, "box": 40.0, "dt": 0.05, "topology": "fixed", "graph": "ring"}, "speed"),
+    ("formation", {"n": 300, "init_length": 60.0, "init_width": 40.0}, "out_speed"),
+]
+
+
+@pytest.mark.parametrize(("model", "params", "speed_name"), MODEL_CASES, ids=[c[0] for c in MODEL_CASES])
+def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, params: dict, speed_name: str) -> None:
+    """Read back from each model's file what a person sees: the drawn agents with their ids and UI-point sizes,
+    arrows of the move just made relative to the reference speed (the one convention), edges joining drawn agents
+    only (potential's fixed graph: edges of that graph), and the field of all agents: one image in 2D, three
+    projections in 3D, each of all N agents."""
+    from tflock.frame import arrow_length
+    from tflock.record import point_radius
+
+    path = tmp_path / f"{model}.rrd"
+    steps, drawn_count = 4, 200
+    sim = make_sim(model=model, params=params, steps=steps, record=path,
+                   log={"max_agents": drawn_count, "max_edges": 400, "field": 32})
+    sim.step(steps - 1)
+    before = sim.model.state()["x"].astype(np.float64)
+    sim.step(1)
+    selected, state, world, p = sim._selected, sim.model.state(), sim.model.world(), sim.model.params
+    sim.close()
+    assert verify_recording(path)
+    assert read_recording(path).steps == list(range(steps + 1))
+    dim, n = world.dim, p.n
+    kind = "Points2D" if dim == 2 else "Points3D"
+    batches = _chunks(path)
+    agents = batches["/world/agents"]
+    pos = np.array(_last(agents, f"{kind}:positions"))
+    np.testing.assert_allclose(pos, state["x"][selected], atol=1e-4)
+    assert len(selected) == drawn_count and np.ptp(selected) > n // 2  # a sample spread over all ids
+    assert _last(agents, f"{kind}:labels") == [f"agent {i}" for i in selected]
+    assert _last(agents, f"{kind}:radii") == pytest.approx([-point_radius(drawn_count)])  # UI points
+
+    # arrows: (x(t) - x(t - 1)) / dt over the reference speed, arrow_length long per unit of it
+    arrows = "Arrows2D" if dim == 2 else "Arrows3D"
+    vectors = np.array(_last(batches["/world/agents/headings"], f"{arrows}:vectors"))
+    moved = state["x"][selected].astype(np.float64) - before[selected]
+    if world.boundary == "periodic":
+        moved -= world.box * np.round(moved / world.box)
+    length = arrow_length(world.box, drawn_count, dim)
+    expected = moved / world.dt / getattr(p, speed_name) * length
+    np.testing.assert_allclose(vectors, expected, atol=2e-3 * length)
+    assert np.max(np.linalg.norm(vectors, axis=1)) > 0.3 * length  # drawn, not vanishing
+
+    # edges: both ends are drawn agents (the far end up to the periodic box), at most the cap
+    strips = np.array(_last(batches["/world/edges"], f"LineStrips{dim}D:strips"))
+    assert 0 < len(strips) <= 400
+
+    def row_of(point: np.ndarray) -> int:
+        gap = pos - point
+        if world.boundary == "periodic":
+            gap -= world.box * np.round(gap / world.box)
+        row = int(np.argmin(np.linalg.norm(gap, axis=1)))
+        assert np.linalg.norm(gap[row]) < 1e-3, "an edge end that is no drawn agent"
+        return row
+
+    pairs = {tuple(sorted((int(selected[row_of(a)]), int(selected[row_of(b)])))) for a, b in strips}
+    assert len(pairs) == len(strips)  # each edge once
+    if model == "potential":
+        graph = {tuple(sorted(e)) for e in sim.model.edges.tolist()}
+        assert pairs <= graph
+    else:
+        assert np.max(np.linalg.norm(strips[:, 1] - strips[:, 0], axis=1)) <= p.radius + 1e-3
+
+    # the field of all agents: every agent binned, in each projection
+    if dim == 2:
+        images = {"xy": batches["/world/field"]}
+    else:
+        images = {plane: batches[f"/field/{plane}"] for plane in ("xy", "xz", "yz")}
+    for plane, field in images.items():
+        assert _last(field, "agents") == [n], plane
+        (fmt,) = _last(field, "SegmentationImage:format")
+        assert 0 < fmt["width"] <= 32 and 0 < fmt["height"] <= 32
+        (image,) = _last(field, "SegmentationImage:buffer")
+        assert np.count_nonzero(np.asarray(image)) > 0, plane

@@ -18,8 +18,10 @@ def quick(tmp_path_factory: pytest.TempPathFactory, reproduce_quick) -> Path:
     return reproduce_quick("samiloglu", tmp_path_factory.mktemp("samiloglu"))
 
 
-def _table(out: Path) -> pd.DataFrame:
-    return pd.read_csv(out / "table.csv")
+def _table(out: Path, headings: str = "wrapped") -> pd.DataFrame:
+    """The points on the paper's wrapped headings, or on the other reading's real ones."""
+    table = pd.read_csv(out / "table.csv")
+    return table[table.headings == headings]
 
 
 def _at(table: pd.DataFrame, boundary: str, bound: int, strategy: int, alpha: float, metric: str) -> float:
@@ -40,6 +42,10 @@ def test_files_and_grid(quick: Path):
     assert (table.clusters >= 1).all() and (table.clusters <= 50).all()
     bounded = table[table.boundary == "reflecting"]
     assert (bounded.e_d <= 100 * math.sqrt(2)).all()  # everyone stays in the 100 x 100 arena
+    real = _table(quick, "real")  # the other reading: strategy 1 in the arena on headings never wrapped
+    assert len(real) == 2 * 3 and set(real.strategy) == {1} and set(real.boundary) == {"reflecting"}
+    assert (real.e_theta >= 0).all() and (real.e_theta <= math.pi).all()
+    assert "### The other reading" in (quick / "comparison.md").read_text()
 
 
 def test_relaxing_the_turn_limit_improves_agreement(quick: Path):

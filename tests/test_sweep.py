@@ -272,6 +272,22 @@ def test_bad_input_is_one_line_and_exit_2(case: str, tmp_path: Path, monkeypatch
     assert needle in lines[0], lines[0]
 
 
+def test_a_point_that_turns_non_finite_is_one_line_and_exit_2(tmp_path: Path, cpu_engine) -> None:
+    """Agents flying at nearly the largest float leave the float range in a batch of replicas: the guard stops the
+    sweep with its one-line fault, naming the point and the replica (no table, no NumPy warning lines)."""
+    largest = np.finfo(np.float32 if PRECISION == "f32" else np.float64).max
+    (tmp_path / "sweep.toml").write_text(
+        f'model = "vicsek"\nreplicas = 2\n[set]\nsteps = 6\n"params.n" = 10\n"params.boundary" = "open"\n'
+        f'"params.speed" = {float(0.9 * largest)!r}\n"log.metrics_every" = 3\n"engine.precision" = "{PRECISION}"\n',
+        encoding="utf-8")
+    result = CliRunner().invoke(app, ["sweep", str(tmp_path / "sweep.toml"), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: point 0: numerical fault in vicsek at step 3: replica 0 (seed 0), agent ")
+    assert not (tmp_path / "out" / "table.parquet").exists()
+
+
 def test_load_sweep_errors_are_config_errors() -> None:
     with pytest.raises(ConfigError, match=r"^point 0 \(params.n = 0\): params.n: must be > 0, got 0$"):
         load_sweep({"model": "vicsek", "grid": {"params.n": [0]}})

@@ -4,10 +4,11 @@ Each case (model, N, start state, threads, arch, precision, logging on or off) r
 engine settings can differ between cases and peak memory is the case's own. A case builds the model's default
 config at N agents with the default density kept (the box side scales as N^(1/dim)), steps it to the wanted
 state, then times single steps. The first step (JIT compile) is reported apart. Per case: ms per step (median,
-min, max over repeats), agent-steps per second, a breakdown (neighbour-grid build, interactions = the rest of the
-step, one metrics pass, one logged frame), with logging a logging run's time per step against the plain step's
-(:func:`_plain_and_logged_steps`), the mean neighbour count (the workload: a step's cost follows it), peak
-resident memory and the model's device bytes per agent.
+min, max over repeats), agent-steps per second, what a run costs per step as ``tflock sim`` runs (the step, the
+metrics at the model's default cadence, the non-finite guard; with logging a frame every step too) against the
+plain step (:func:`_plain_and_run_steps`), a breakdown (neighbour-grid build, interactions = the rest of the
+step, one metrics pass, one logged frame), the mean neighbour count (the workload: a step's cost follows it),
+peak resident memory and the model's device bytes per agent.
 
 Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
 as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
@@ -42,7 +43,7 @@ PEER_BUDGET_S = 10.0  # a peer runs only where one step is expected to take less
 NUMBA_S_PER_AGENT, NUMBA_S_PER_PAIR = 1e-6, 4e-8
 #: expected time of the cKDTree + sparse-matrix peer per agent-neighbour pair (0.2-0.35 us measured here at 1e6)
 CKDTREE_S_PER_PAIR = 4e-7
-LOG_TURNS = 8  # turns of plain steps and a logging run per logging case (see _plain_and_logged_steps)
+LOG_TURNS = 8  # turns of plain steps and runs per case (see _plain_and_run_steps)
 METRICS_NEVER = 10**9  # log.metrics_every of a case: steps logged for timing take no metrics pass (timed apart)
 
 
@@ -82,9 +83,14 @@ class BenchResult:
     interactions_ms: float | None = None
     metrics_ms: float = 0.0
     logging_ms: float | None = None  # one logged frame: the non-finite guard, the frame (edges too), Rerun
-    logged_ms_median: float | None = None  # a logging run's ms per step (a frame every step), the same steps
-    # median over turns of (a logging run's ms per step / its turn's plain ms per step) - 1
-    logging_overhead: float | None = None
+    run_ms_median: float = 0.0  # a run's ms per step as tflock sim runs it: metrics (default cadence), guard
+    run_ms_min: float = 0.0  # the fastest and slowest of those runs (ms per step)
+    run_ms_max: float = 0.0
+    run_overhead: float = 0.0  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
+    logged_ms_median: float | None = None  # with log: the same run with a frame every step
+    logged_ms_min: float | None = None  # with log: the fastest and slowest logged run (ms per step)
+    logged_ms_max: float | None = None
+    logging_overhead: float | None = None  # with log: median over turns of (logged run / run without frames) - 1
     peak_rss_mb: float = 0.0
     device_bytes_per_agent: float = 0.0
     # name -> {"ms": .., "ratio": peer / tflock} (numba_cells adds "first_call_s": its JIT compile or cache load)
@@ -243,43 +249,77 @@ def _written(sim: Any) -> None:
     import taichi as ti
 
     ti.sync()
-    sim.recorder.flush()
+    if sim.recorder is not None:  # a case run without a recording
+        sim.recorder.flush()
 
 
-def _plain_and_logged_steps(sim: Any, repeats: int) -> tuple[list[float], float, float]:
-    """The plain steps' ms (grid build included), a logging run's ms per step (a frame every step: the step on the
-    grid its last frame built, the non-finite guard, this step's grid and frame, Rerun) and the logging overhead.
+@dataclass
+class Turns:
+    """What :func:`_plain_and_run_steps` measured (ms per step)."""
 
-    ``LOG_TURNS`` turns, each `repeats` plain steps and a logging run of as many steps, all from the case's state
-    (every turn times the same steps: the workload stays the state's). A logging run is timed whole, until Rerun's
-    background threads have encoded and written its last frame; the runs' median is returned. The overhead is the
-    median over turns of a logging run's time against its own turn's plain steps, which cancels the drift of a
-    shared machine between turns (at 1e6 here plain steps drift between 30 and 50 ms within minutes). Timing single
-    logged steps between plain ones hid part of the cost: the background work of one frame then overlapped the
-    next plain step, which looked slower and the logging cheaper than in a run (at 1e6: plain 53-64 ms against
-    42-50 in a row, +9-16 % against +30-60 % for a logging run)."""
+    plain: list[float]  # every plain step: the model's step alone (grid build included)
+    run: float  # median over turns of a run's ms per step, as tflock sim runs it without a recording
+    run_range: tuple[float, float]  # the fastest and slowest run (ms per step)
+    run_overhead: float  # median over turns of (a run's ms per step / its turn's plain ms per step) - 1
+    logged: float | None = None  # with --log: median over turns of a logged run's ms per step
+    logged_range: tuple[float, float] | None = None  # with --log: the fastest and slowest logged run
+    logging_overhead: float | None = None  # with --log: median over turns of (logged run / its turn's run) - 1
+
+
+def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) -> Turns:
+    """Plain steps against runs of as many steps as ``tflock sim`` runs them: ``Simulation.step`` with metrics
+    every `metrics_every` steps (the model's default) and the non-finite guard, and with `log` a frame every step
+    (the frame, its edges, Rerun's encoding and writing).
+
+    ``LOG_TURNS`` turns, each `repeats` plain steps, a run without frames and, with `log`, a logged run, all from
+    the case's state (every turn times the same steps: the workload stays the state's). A run is timed whole, until
+    Rerun's background threads have written its last frame (timing single logged steps between plain ones hides
+    the background work of a frame, which then overlaps the next plain step). Overheads are medians over turns of a
+    run against its own turn's plain steps (or a logged run against its turn's run), which cancels the drift of a
+    shared machine between turns."""
     import taichi as ti
 
-    model, plain, runs, ratios = sim.model, [], [], []
+    model, log_config = sim.model, sim.config.log
     start = (model.checkpoint(), model.step_index)
+    plain: list[float] = []
+    runs, run_ratios, logged, log_ratios = [], [], [], []
+
+    def timed_run(frames: bool) -> float:
+        model.restore(*start)
+        if frames:
+            model.build_neighbours()  # as the frame of the step before would have
+        ti.sync()
+        log_config.every = 1 if frames else METRICS_NEVER
+        log_config.metrics_every = metrics_every
+        try:
+            return _timed(lambda: sim.step(repeats), lambda: _written(sim)) / repeats
+        finally:
+            log_config.metrics_every = METRICS_NEVER
+
     for _ in range(LOG_TURNS):
         model.restore(*start)
         turn = [_timed(lambda: model.advance(1), ti.sync) for _ in range(repeats)]
-        model.restore(*start)
-        model.build_neighbours()  # as the frame of the step before would have
-        ti.sync()
-        runs.append(_timed(lambda: sim.step(repeats), lambda: _written(sim)) / repeats)
-        ratios.append(runs[-1] / statistics.fmean(turn))
         plain += turn
-    return plain, statistics.median(runs), statistics.median(ratios) - 1.0
+        runs.append(timed_run(frames=False))
+        run_ratios.append(runs[-1] / statistics.fmean(turn))
+        if log:
+            logged.append(timed_run(frames=True))
+            log_ratios.append(logged[-1] / runs[-1])
+    turns = Turns(plain, statistics.median(runs), (min(runs), max(runs)), statistics.median(run_ratios) - 1.0)
+    if log:
+        turns.logged, turns.logged_range = statistics.median(logged), (min(logged), max(logged))
+        turns.logging_overhead = statistics.median(log_ratios) - 1.0
+    return turns
 
 
 def run_case(case: BenchCase) -> BenchResult:
     """Measure one case in this process (the engine is initialised with the case's settings)."""
     import taichi as ti
 
+    from tflock.config import load_config
     from tflock.simulation import Simulation
 
+    default_metrics_every = load_config(model=case.model).log.metrics_every
     result = BenchResult(case=case)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -293,10 +333,13 @@ def run_case(case: BenchCase) -> BenchResult:
         if case.state == "developed":
             model.advance(case.develop_steps)
             ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
-        if case.log:
-            steps, result.logged_ms_median, result.logging_overhead = _plain_and_logged_steps(sim, case.repeats)
-        else:
-            steps = [_timed(lambda: model.advance(1), ti.sync) for _ in range(case.repeats)]
+        turns = _plain_and_run_steps(sim, case.repeats, default_metrics_every, case.log)
+        steps = turns.plain
+        result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
+        result.run_ms_min, result.run_ms_max = turns.run_range
+        result.logged_ms_median, result.logging_overhead = turns.logged, turns.logging_overhead
+        if turns.logged_range is not None:
+            result.logged_ms_min, result.logged_ms_max = turns.logged_range
         result.ms_median = statistics.median(steps)
         result.ms_min, result.ms_max = min(steps), max(steps)
         result.agent_steps_per_s = case.n / (result.ms_median / 1e3)

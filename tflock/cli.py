@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 import time
+import warnings
 from importlib import import_module
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -36,7 +37,9 @@ class _OneLineUsageErrors(TyperGroup):
         if not standalone_mode:
             return super().main(*args, standalone_mode=False, **kwargs)
         try:
-            code = super().main(*args, standalone_mode=False, **kwargs)
+            with warnings.catch_warnings():
+                warnings.showwarning = _warning_line
+                code = super().main(*args, standalone_mode=False, **kwargs)
         except getattr(_click_errors, "NoArgsIsHelpError", ()) as e:  # the help text is printed already
             sys.exit(e.exit_code)
         except _click_errors.ClickException as e:
@@ -63,6 +66,17 @@ def _error_line(message: str) -> None:
     err.print(f"[bold red]error:[/] {escape(' '.join(message.split()))}", highlight=False, soft_wrap=True, emoji=False)
 
 
+def _warning_line(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+                  line: str | None = None) -> None:
+    """A Python warning as one ``warning: ...`` line on stderr: tflock's own (:class:`tflock.advice.TflockWarning`)
+    as their message, any other with its category and source."""
+    from tflock.advice import TflockWarning
+
+    text = str(message) if issubclass(category, TflockWarning) else (
+        f"{category.__name__}: {message} ({Path(filename).name}:{lineno})")
+    err.print(f"[yellow]warning:[/] {escape(' '.join(text.split()))}", highlight=False, soft_wrap=True, emoji=False)
+
+
 def fail(message: str) -> NoReturn:
     """One-line error, exit code 2."""
     _error_line(message)
@@ -85,6 +99,8 @@ def sim(
     checkpoint_every: Annotated[int, typer.Option(help="Write a checkpoint every K steps (0 = never).")] = 0,
     checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint file (default: beside the recording).")] = None,
     resume: Annotated[Path | None, typer.Option(help="Continue a run from its checkpoint (.npz).")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an earlier run's files at the output "
+                                            "paths (refused without it).")] = False,
 ) -> None:
     """Run a simulation: `tflock sim` runs the default Vicsek config and records it under recordings/."""
     t_start = time.perf_counter()
@@ -103,8 +119,12 @@ def sim(
         if resume is not None:
             from tflock.simulation import read_checkpoint
 
-            saved = tomllib.loads(str(read_checkpoint(resume, arrays=False)["config_toml"]))
-            cfg = load_config(saved, overrides=overrides)
+            header = read_checkpoint(resume, arrays=False)
+            cfg = load_config(tomllib.loads(str(header["config_toml"])), overrides=overrides)
+            at = int(header["step"])
+            if cfg.steps <= at:
+                fail(f"--steps: the checkpoint is at step {at} and the run would end at step {cfg.steps}: nothing "
+                     f"to run; give --steps > {at} (the total, counted from step 0)")
         else:
             cfg = load_config(config, model=model, overrides=overrides)
     except ConfigError as e:
@@ -117,15 +137,12 @@ def sim(
     signal.signal(signal.SIGTERM, stop.handler)  # SLURM, timeout, docker stop: finish the file
     signal.signal(signal.SIGINT, stop.handler)  # also when started in the background
     from tflock.engine import EngineError
-    from tflock.simulation import NumericalFaultError, Simulation, default_recording_path
+    from tflock.simulation import NumericalFaultError, Simulation
 
-    if checkpoint_every and checkpoint is None:
-        base = out_path or (Path(cfg.log.out) if cfg.log.out else default_recording_path(cfg.model))
-        checkpoint = base.with_suffix(".checkpoint.npz")
     try:
         simulation = Simulation(cfg if resume is None else None, overrides=None if resume is None else overrides,
                                 resume=resume, record=record, spawn=spawn, connect=connect, checkpoint=checkpoint,
-                                checkpoint_every=checkpoint_every)
+                                checkpoint_every=checkpoint_every, overwrite=overwrite)
     except OSError as e:
         fail(e.strerror or str(e))
     except (ConfigError, EngineError, RuntimeError) as e:
@@ -243,15 +260,24 @@ def config_show(model: Annotated[str, typer.Argument(help="Model name (see `tflo
 def view(
     path: Annotated[Path, typer.Argument(help="Recording (.rrd).")],
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on localhost (no display needed).")] = False,
-    port: Annotated[int, typer.Option(help="Web viewer port.")] = 9090,
+    port: Annotated[int | None, typer.Option(help="Web viewer port (default: a free one).")] = None,
+    grpc_port: Annotated[int | None, typer.Option(help="Data port of --web (default: a free one).")] = None,
+    screenshot: Annotated[Path | None, typer.Option(
+        help="Save a PNG of the web viewer showing the recording (headless Chromium; needs playwright).")] = None,
 ) -> None:
-    """Open a recording in the Rerun viewer."""
+    """Open a recording in the Rerun viewer, or save a screenshot of it."""
     from tflock.record import open_viewer
 
     if not path.is_file():
         fail(f"recording not found: {path}")
     try:
-        open_viewer(path, web=web, port=port)
+        if screenshot is not None:
+            from tflock.screenshot import take_screenshots
+
+            take_screenshots(path, [screenshot])
+            out.print(str(screenshot))
+            return
+        open_viewer(path, web=web, port=port, grpc_port=grpc_port)
     except (RuntimeError, OSError) as e:
         fail(str(e))
     except KeyboardInterrupt:
@@ -268,7 +294,11 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
     try:
         summary = read_recording(path)
     except ValueError as e:
-        fail(str(e))
+        from tflock.repair import RRD_MAGIC
+
+        with open(path, "rb") as file:
+            cut = file.read(len(RRD_MAGIC)) == RRD_MAGIC  # a Rerun file whose end is cut: a killed run's
+        fail(str(e) + (f"; if its run was killed, `tflock repair {path}` recovers what it holds" if cut else ""))
     out.print(f"[bold]{path}[/]", highlight=False)
     out.print(f"model: {summary.model}")
     first = summary.steps[0] if summary.steps else None
@@ -280,6 +310,55 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
     out.print(table)
     out.print("config:")
     out.print(summary.config_toml, markup=False, highlight=False)
+
+
+@app.command()
+def repair(
+    path: Annotated[Path, typer.Argument(help="Recording (.rrd) of a killed run: no footer.")],
+    out_path: Annotated[Path | None, typer.Option("--out", "-o", help="Write the repaired file here instead of "
+                                                  "replacing PATH.")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an earlier file at --out.")] = False,
+) -> None:
+    """Make a killed run's recording complete (footer included) through Rerun's own reader and writer."""
+    from tflock.repair import RepairError, repair_recording
+
+    if out_path is not None and out_path.suffix != ".rrd":
+        fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
+    try:
+        result = repair_recording(path, out_path, overwrite=overwrite)
+    except RepairError as e:
+        fail(str(e))
+    except OSError as e:
+        fail(e.strerror or str(e))
+    summary = result.summary
+    held = "" if summary is None or summary.last_step is None else (
+        f": {summary.frames} frames (steps {summary.steps[0]} to {summary.last_step}), "
+        f"{summary.metric_rows} metric rows")
+    if not result.rewritten:
+        out.print(f"{result.path} is complete already (rerun rrd verify passes){held}", highlight=False,
+                  soft_wrap=True)
+        return
+    out.print(f"repaired {result.path} (rerun rrd verify passes){held}", highlight=False, soft_wrap=True)
+    table = path.with_suffix(".metrics.csv")
+    last = _last_table_step(table)
+    if last is not None and summary is not None:
+        out.print(f"its metrics table {table} has rows up to step {last} (the recording's last metrics may be a "
+                  "fraction of a second older)", highlight=False, soft_wrap=True)
+
+
+def _last_table_step(table: Path) -> int | None:
+    """The step of the last complete row of a metrics table, or None."""
+    try:
+        with open(table, "rb") as file:
+            file.seek(max(0, file.seek(0, 2) - 65536))
+            rows = file.read().decode("utf-8", "replace").split("\n")
+    except OSError:
+        return None
+    for row in reversed(rows[:-1]):  # the text after the last newline is a row cut short, or nothing
+        first = row.split(",", 1)[0]
+        if first.isdigit():
+            return int(first)
+    return None
 
 
 def _int_list(text: str, what: str) -> list[int]:
@@ -369,18 +448,23 @@ def bench(
             except RuntimeError as e:
                 err.print(f"[yellow]skipped:[/] {e}", highlight=False)
             progress.advance(task)
-    table = Table(title="tflock bench (ms per step: median (min-max); workload = mean neighbours per agent)")
-    for column in ("model", "N", "state", "neighbours", "ms/step", "agent-steps/s", "build", "interact",
-                   "metrics", "log", "logged step", "first step", "B/agent", "peers (x tflock time)"):
+    table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, with metrics and "
+                  "guard, against the plain step; logged run: a frame every step too, against the run; "
+                  "workload = mean neighbours per agent)")
+    for column in ("model", "N", "state", "neighbours", "ms/step", "run ms/step", "logged run", "agent-steps/s",
+                   "build", "interact", "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
         table.add_column(column, justify="right")
     for r in results:
         c = r.case
         opt = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
         peer_text = ", ".join(f"{k} {v['ratio']:.1f}x" for k, v in r.peers.items()) or "-"
+        logged = "-" if r.logged_ms_median is None else (
+            f"{r.logged_ms_median:.2f} ({r.logged_ms_min:.2f}-{r.logged_ms_max:.2f}, {r.logging_overhead:+.0%})")
         table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
-                      f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})", f"{r.agent_steps_per_s:.3g}",
+                      f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
+                      f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {r.run_overhead:+.0%})",
+                      logged, f"{r.agent_steps_per_s:.3g}",
                       opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
-                      "-" if r.logged_ms_median is None else f"{r.logged_ms_median:.1f} ({r.logging_overhead:+.0%})",
                       f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)
     (out if out.is_terminal else Console(width=200)).print(table)
     if not results:

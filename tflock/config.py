@@ -63,6 +63,8 @@ __all__ = [
 ]
 
 DEFAULT_MODEL = "vicsek"
+#: the most steps a run can take: the kernels' step counter (and the random keys) are 32-bit integers
+MAX_STEPS = 2**31 - 1
 TWO_PI = 2.0 * math.pi
 _FLOAT_MAX = sys.float_info.max
 
@@ -153,7 +155,11 @@ class LogConfig(BaseModel):
         description="agents drawn per frame, >= 0: the same seeded subset every frame; "
         "metrics always use all agents",
     )
-    max_edges: Int = Field(4000, ge=0, description="neighbour edges drawn per frame, >= 0")
+    max_edges: Int = Field(4000, ge=0, description="neighbour edges drawn per frame (among the drawn agents), >= 0")
+    field: Int = Field(-1, ge=-1, le=1024, description="pixels a side of the field of all agents drawn with each "
+                       "frame when not all agents are drawn, in [-1, 1024]; -1 = by N (64 to 256), 0 = none")
+    trail: Int = Field(0, ge=0, le=1000, description="positions of each drawn agent's trail, in [0, 1000]; "
+                       "0 = no trails")
     metrics_every: Int = Field(1, ge=1, description="compute and log the metrics every k steps, k >= 1")
 
     @field_validator("out")
@@ -236,6 +242,11 @@ class VicsekParams(BaseModel):
         "2008), ties broken by agent id; synchronous updates only",
     )
     k: Int = Field(6, ge=1, le=32, description="neighbours of each agent when topological, in [1, 32], < n")
+    wrap_headings: bool = Field(
+        True,
+        description="wrap headings into [0, 2 pi) after every update and wall reflection (Samiloglu section 3); "
+        "false keeps them as real numbers, which changes only the rules that use angle values (average, laplacian)",
+    )
 
     @model_validator(mode="after")
     def _cross_field_rules(self) -> VicsekParams:
@@ -292,7 +303,8 @@ class Config(BaseModel):
         le=2**32 - 1,
         description="seed of all random draws (initial state, noise), in [0, 2**32 - 1]",
     )
-    steps: Int = Field(200, ge=0, description="number of steps to simulate, >= 0")
+    steps: Int = Field(200, ge=0, le=MAX_STEPS, description="number of steps to simulate, in [0, 2**31 - 1] "
+                       "(the kernels count steps in 32-bit integers)")
     engine: EngineConfig = Field(default_factory=EngineConfig, description="where the kernels run")
     params: SerializeAsAny[BaseModel] = Field(
         default_factory=dict, validate_default=True, description="parameters of the model"

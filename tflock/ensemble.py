@@ -9,6 +9,7 @@ step 0, every ``log.metrics_every`` steps and at the last step.
 """
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -60,17 +61,43 @@ def _lone(config: Config, done: int, progress: Callable[[int], None] | None) -> 
 def _batch(config: Config, first: int, count: int, progress: Callable[[int], None] | None) -> list[MetricsTable]:
     """Replicas first .. first + count - 1 in one batched model, observed at the cadence of a lone run."""
     engine = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
-    model = model_class(config.model)(config.params, config.seed + first, engine, replicas=count)
+    with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
+        model = model_class(config.model)(config.params, config.seed + first, engine, replicas=count)
     names = list(model.metric_descriptions)
-    rows: list[tuple[int, dict[str, np.ndarray]]] = [(0, model.replica_metrics())]
+    rows: list[tuple[int, dict[str, np.ndarray]]] = [(0, _checked_metrics(model, config, first))]
     for _ in range(config.steps):
         model.advance(1)
         t = model.step_index
         if t % config.log.metrics_every == 0 or t == config.steps:
-            rows.append((t, model.replica_metrics()))
+            rows.append((t, _checked_metrics(model, config, first)))
         if progress is not None:
             progress(first * config.steps + count * t)
     steps = np.array([float(t) for t, _ in rows])
     return [{"step": steps, "time": steps * model.dt, **{name: np.array([values[name][r] for _, values in rows])
                                                         for name in names}}
             for r in range(count)]
+
+
+def _checked_metrics(model: Any, config: Config, first: int) -> dict[str, np.ndarray]:
+    """The batch's :meth:`replica_metrics`, after the non-finite guard a lone run applies (:mod:`tflock.guard`):
+    a start state beyond the float range, or a non-finite state at a metrics step, stops the point with a
+    :class:`~tflock.simulation.NumericalFaultError` naming the replica, its seed and the agent (ids in a batch are
+    ``replica * n + agent``). A state that passed is measured without NumPy's overflow warnings (squares of
+    distances beyond the float range are inf, as they should be)."""
+    from tflock.simulation import NumericalFaultError, non_finite_start
+
+    found = model.first_non_finite()
+    if found is not None:
+        slot, quantity = found
+        offset, agent = divmod(slot, config.params.n)
+        seed = config.seed + first + offset
+        who, t = f"replica {first + offset} (seed {seed}), ", model.step_index
+        if t == 0:
+            raise non_finite_start(config, t, agent, quantity, who)
+        raise NumericalFaultError(
+            f"numerical fault in {config.model} at step {t}: {who}agent {agent} has a non-finite {quantity} (the "
+            f"replicas are checked every log.metrics_every = {config.log.metrics_every} steps); the point stopped: "
+            f"`tflock sim` with its config and --seed {seed} finds the first bad step and saves the last good state",
+            model=config.model, step=t, agent=agent, quantity=quantity, checkpoint=None)
+    with np.errstate(over="ignore"):
+        return model.replica_metrics()

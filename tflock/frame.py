@@ -1,15 +1,24 @@
-"""What a model hands the recorder: the world's geometry and one drawn step, as plain NumPy data.
+"""What a model hands the recorder: the world's geometry, its colour legend and one drawn step, as plain NumPy data.
 
 Kept apart from :mod:`tflock.record` (the only module that imports Rerun) so that models and runs without a
 recording never load Rerun.
+
+The arrow convention, the same for every model: an agent's arrow is its velocity over the step just made,
+``(x(t) - x(t - 1)) / dt`` (up to a boundary's wrap or mirror), divided by the model's reference speed (Vicsek's and
+Li-Wang's v0, Tanner's initial speed bound, the formation's |vout|) and drawn ``arrow_length`` scene units long
+per unit of it: a full-speed agent's arrow has length ``arrow_length`` (see :func:`arrow_length`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from tflock.field import FieldImage
 
 BOUNDARIES = ("periodic", "reflecting", "open")
 
@@ -39,6 +48,28 @@ class WorldSpec:
         return self.boundary != "open"
 
 
+@dataclass(frozen=True)
+class ColorLegend:
+    """What the agents' colours mean, drawn beside the world view: the hue wheel of headings (``wheel``), or named
+    colours (a speed ramp's stops, a model's categories) as ``entries`` of (label, (r, g, b))."""
+
+    title: str
+    wheel: bool = False
+    entries: tuple[tuple[str, tuple[int, int, int]], ...] = ()
+
+
+#: the legend of agents coloured by the hue of their heading (Vicsek, adaptive)
+HEADING_LEGEND = ColorLegend("agents: heading", wheel=True)
+
+
+def arrow_length(box: float, drawn: int, dim: int = 2) -> float:
+    """Scene length of a full-speed agent's arrow: 0.6 of the spacing of the drawn agents in the box (so that arrows
+    of neighbouring agents do not cover each other), at most 1/30 of the box (about 30 px when the box fills a
+    900 px view)."""
+    spacing = box / max(drawn, 1) ** (1.0 / dim)
+    return float(min(0.6 * spacing, box / 30.0))
+
+
 @dataclass
 class Marker:
     """A named object drawn on its own entity ``world/<name>``: a point, an optional arrow and an optional circle
@@ -49,7 +80,7 @@ class Marker:
     direction: np.ndarray | None = None  # (dim,) arrow, scaled by the frame's arrow_length * 1.5
     circle: float | None = None  # radius of a circle drawn around the point (2D only)
     color: tuple[int, int, int] = (255, 255, 255)
-    size: float = 2.5  # point radius, in multiples of the frame's agent radius
+    size: float = 2.5  # point radius, in multiples of the agents' point radius
 
 
 @dataclass
@@ -57,15 +88,16 @@ class Frame:
     """What is drawn at one step (already subsampled by the caller). Arrays are converted to float32."""
 
     positions: np.ndarray  # (M, dim) float32
-    directions: np.ndarray  # (M, dim) heading unit vectors (or velocities)
-    arrow_length: float  # scene units the unit direction is scaled to
+    directions: np.ndarray  # (M, dim) velocities over the step just made / the reference speed (module docstring)
+    arrow_length: float  # scene length of a direction of length 1
     colors: np.ndarray | None = None  # (M, 3) uint8; None: hue of the heading angle atan2(y, x)
-    edges: np.ndarray | None = None  # (E, 2, dim) neighbour pairs, one LineStrips entity
+    edges: np.ndarray | None = None  # (E, 2, dim) neighbour pairs among the drawn agents, one LineStrips entity
     leader: np.ndarray | None = None  # (dim,) leader position, drawn bigger in white at world/leader
-    radius: float = 0.3  # point radius in scene units
     leader_direction: np.ndarray | None = None  # (dim,) leader heading; drawn as an arrow when given
     markers: list[Marker] = field(default_factory=list)  # other objects, each at world/<name> (same set each frame)
     profiles: dict[str, np.ndarray] = field(default_factory=dict)  # 1D series of all agents, e.g. a density profile
+    ids: np.ndarray | None = None  # (M,) agent ids of the rows, shown when hovering an agent
+    fields: list[FieldImage] = field(default_factory=list)  # the coarse-grained field of all agents (tflock.field)
 
 
 #: steps of the hue wheel: 256 per sixth, one per 8-bit colour level

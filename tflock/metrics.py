@@ -336,17 +336,37 @@ def _pairs_exact(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, 
         partial[i, 1] = angle
 
 
+#: sampled pairs whose terms :func:`_pairs_sampled` adds in the run's float type, in sample order (few enough that
+#: an f32 sum keeps its precision; NumPy adds the blocks in float64)
+PAIR_BLOCK = 64
+#: sampled pairs whose agents are read before any is used: independent loads the CPU overlaps, where one pair at a
+#: time waits on each of its (cache-missing, at large N) reads in turn
+PAIRS_IN_FLIGHT = 16
+
+
 @ti.kernel
 def _pairs_sampled(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, box: float, seed: ti.u32,
                    step: ti.i32, boundary: ti.template(), dim: ti.template(), partial: ti.types.ndarray()):
-    for m in range(partial.shape[0]):  # ordered pair (i, j), i != j, uniform: unbiased for the pair mean
-        i = randint_ti(hash_ti(seed, step, m, Stream.PAIR_I), n)
-        j = randint_ti(hash_ti(seed, step, m, Stream.PAIR_J), n - 1)
-        if j >= i:
-            j += 1
-        a, b = _pair_terms(pos, theta, i, j, box, boundary, dim)
-        partial[m, 0] = a
-        partial[m, 1] = b
+    """Sums of the pair terms over samples [b PAIR_BLOCK, (b + 1) PAIR_BLOCK) in ``partial[b]``. Sample m is the
+    ordered pair (i, j), i != j, drawn uniformly from (seed, step, m): unbiased for the mean over pairs."""
+    for b in range(partial.shape[0]):
+        dist = 0.0
+        angle = 0.0
+        for c in range(PAIR_BLOCK // PAIRS_IN_FLIGHT):
+            first = ti.Vector([0] * PAIRS_IN_FLIGHT)
+            second = ti.Vector([0] * PAIRS_IN_FLIGHT)
+            for u in ti.static(range(PAIRS_IN_FLIGHT)):
+                m = (b * PAIR_BLOCK + c * PAIRS_IN_FLIGHT) + u
+                i = randint_ti(hash_ti(seed, step, m, Stream.PAIR_I), n)
+                j = randint_ti(hash_ti(seed, step, m, Stream.PAIR_J), n - 1)
+                first[u] = i
+                second[u] = ti.select(j >= i, j + 1, j)
+            for u in ti.static(range(PAIRS_IN_FLIGHT)):
+                a, e = _pair_terms(pos, theta, first[u], second[u], box, boundary, dim)
+                dist += a
+                angle += e
+        partial[b, 0] = dist
+        partial[b, 1] = angle
 
 
 def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boundary: int, dim: int, seed: int,
@@ -354,8 +374,9 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
     """Samiloglu-Gazi-Koku section V: e_d, the mean pairwise distance (minimum image when periodic), and
     e_theta, the mean pairwise circular heading difference |wrap(theta_i - theta_j)| in [0, pi].
 
-    Exact for n <= EXACT_PAIRS_MAX; above, the mean over SAMPLED_PAIRS uniformly drawn pairs (unbiased; drawn
-    from (seed, step, sample) so the estimate is reproducible). Both are invariant to the order of agents.
+    Exact for n <= EXACT_PAIRS_MAX (and then invariant to the order of the agents); above, the mean over
+    SAMPLED_PAIRS uniformly drawn pairs of array elements (unbiased; drawn from (seed, step, sample), so the
+    estimate is reproducible: the arrays' order is the same whatever the thread count).
     """
     if n < 2:
         return 0.0, 0.0
@@ -363,9 +384,9 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
         partial = _scratch((n, 2), pos.dtype)
         _pairs_exact(pos, theta, n, box, boundary, dim, partial)
         return tuple(partial.to_numpy().astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
-    partial = _scratch((SAMPLED_PAIRS, 2), pos.dtype)
+    partial = _scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
-    return tuple(partial.to_numpy().astype(np.float64).mean(axis=0))
+    return tuple(partial.to_numpy().astype(np.float64).sum(axis=0) / SAMPLED_PAIRS)
 
 
 @ti.kernel

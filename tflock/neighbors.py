@@ -686,73 +686,12 @@ def _drawn_slots(n: ti.i32, id_sorted: ti.types.ndarray(), bits: ti.types.ndarra
             slot[r] = s
 
 
-@ti.kernel
-def _slots_in_cells(m0: ti.i32, m1: ti.i32, per_replica: ti.i32, box: float, cell_size: float, nc: ti.i32,
-                    n_buckets: ti.i32, boundary: ti.template(), dim: ti.template(), selected: ti.types.ndarray(),
-                    positions: ti.types.ndarray(), bounds: ti.types.ndarray(), anchor: ti.types.ndarray(),
-                    start: ti.types.ndarray(), id_sorted: ti.types.ndarray(), slot: ti.types.ndarray(),
-                    missing: ti.types.ndarray()):
-    """The slots of drawn agents m0 <= r < m1 from their positions (those the grid was built from), each looked
-    for in its own cell's bucket only; ``missing[0]`` counts those not found there."""
-    for r in range(m0, m1):
-        a = selected[r]
-        p = ti.Vector([positions[r, d] for d in ti.static(range(dim))])
-        _, b = _cell_and_bucket(p, a, per_replica, bounds, anchor, box, cell_size, nc, n_buckets, boundary, dim)
-        found = -1
-        for k in range(start[b], start[b + 1]):
-            if id_sorted[k] == a:
-                found = k
-        slot[r] = found
-        if found < 0:
-            ti.atomic_add(missing[0], 1)
-
-
-@ti.kernel
-def _pairs(m0: ti.i32, m1: ti.i32, slot: ti.types.ndarray(), bits: ti.types.ndarray(),
-           word_rank: ti.types.ndarray(), radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
-           id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-           coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
-           limit: ti.i32, fill: ti.i32, edges: ti.types.ndarray()):
-    """Count (fill = 0) or write (fill = 1, from `offsets`, at most `limit`) the drawn neighbour pairs of the
-    selected agents m0 <= m < m1 (a run-time flag: one kernel to compile for both passes)."""
-    for m in range(m0, m1):
-        e = 0
-        if fill:
-            e = offsets[m]
-        s = slot[m]
-        i = id_sorted[s]
-        p = load_vec(pos_sorted, s, dim)
-        c = load_cell(coords_sorted, s, dim)
-        for o in range(ti.static(span_count(boundary, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
-            for k in range(begin, end):
-                j = id_sorted[k]
-                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                keep = d.norm_sqr() <= radius * radius and k != s and (drawn_rank(j, bits, word_rank) < 0 or j > i)
-                if keep and (check == 0 or same_cell(coords_sorted, k, cell, boundary, dim) == 1):
-                    if fill:
-                        if e < limit:
-                            for a in ti.static(range(dim)):
-                                edges[e, 0, a] = p[a]
-                                edges[e, 1, a] = p[a] + d[a]
-                    e += 1
-        if not fill:
-            counts[m] = e
-
-
-EDGE_CHUNK = 256  # drawn agents whose edges are counted in the first pass
-
-
 class SubsetDrawing:
     """Fixed subset of agents drawn every frame: their membership and frame rows (``bits``, ``word_rank``, see
-    :func:`drawn_rank`) and their neighbour edges, built on the device.
+    :func:`drawn_rank`) and their slots in the grid, on the device.
 
     Index arrays are uploaded once. The drawn agents' slots in the grid (``slot``) come from one pass over the
-    grid's agents per build (or a model's own rows pass, which says so with :meth:`located`), or, for the few
-    agents whose edges are drawn, from their positions when the model has them (:meth:`edges`); edges are counted
-    and written for only as many drawn agents as the cap needs.
+    grid's agents per build (or a model's own rows pass, which says so with :meth:`located`).
     """
 
     def __init__(self, grid: CellGrid, selected_ids: np.ndarray) -> None:
@@ -761,7 +700,6 @@ class SubsetDrawing:
         m = max(1, len(self.selected_ids))
         self.slot = ti.ndarray(ti.i32, m)  # each drawn agent's slot in the grid's build number `_located`
         self._located = -1
-        self._first_chunk = EDGE_CHUNK  # drawn agents the first counting launch of edges() takes
         # membership as one bit per agent (it stays in cache during a pass over all agents) and, per 32-agent word,
         # the rank of its first selected agent: see drawn_rank
         words = (grid.n + 31) // 32
@@ -786,62 +724,95 @@ class SubsetDrawing:
             _drawn_slots(self.grid.n, self.grid.id_sorted, self.bits, self.word_rank, self.slot)
             self.located()
 
-    def _locate_rows(self, m0: int, m1: int, positions: np.ndarray | None) -> None:
-        """Fill ``slot`` for drawn agents m0 .. m1 - 1: from their `positions` (exactly those the grid was built
-        from), each in its own cell, or, without positions or should one not be found there, by :meth:`locate`."""
-        if self._located == self.grid.builds:
-            return
-        if positions is not None:
-            grid = self.grid
-            g = grid.geometry
-            missing = np.zeros(1, dtype=np.int32)
-            _slots_in_cells(m0, m1, g.agents_per_replica, grid.box, g.cell_size, g.cells_per_side, g.n_buckets,
-                            g.boundary, g.dim, self.selected_ids, positions, grid.bounds, grid.anchor, grid.start,
-                            grid.id_sorted, self.slot, missing)
-            if missing[0] == 0:
-                return
-        self.locate()
 
-    def edges(self, box: float, radius: float, max_edges: int, positions: np.ndarray | None = None) -> np.ndarray:
-        """Segments (E, 2, dim) from each selected agent to its neighbours, E <= max_edges.
+@ti.kernel
+def _lower_pairs(rows: ti.i32, slot_of: ti.types.ndarray(), radius: float, box: float, nc: ti.i32,
+                 n_buckets: ti.i32, boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+                 mixed: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                 coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
+                 fill: ti.i32, edges: ti.types.ndarray()):
+    """Count (fill = 0) or write (fill = 1, from `offsets`) each row's pairs with the earlier rows within R, for
+    rows 0 .. rows - 1 of a grid whose agent ids are the rows (a run-time flag: one kernel for both passes).
+    An edge goes from the row's position to the earlier row's nearest image (minimum image when periodic)."""
+    for r in range(rows):
+        e = 0
+        if fill:
+            e = offsets[r]
+        s = slot_of[r]
+        p = load_vec(pos_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
+        for o in range(ti.static(span_count(boundary, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                keep = id_sorted[k] < r and d.norm_sqr() <= radius * radius
+                if keep and (check == 0 or same_cell(coords_sorted, k, cell, boundary, dim) == 1):
+                    if fill:
+                        for a in ti.static(range(dim)):
+                            edges[e, 0, a] = p[a]
+                            edges[e, 1, a] = p[a] + d[a]
+                    e += 1
+        if not fill:
+            counts[r] = e
 
-        A pair of two selected agents appears once; the far end uses the minimum image, so edges never span a
-        periodic box. Agents are taken in id order until `max_edges` is reached (deterministic). With the drawn
-        agents' `positions` (M, dim), exactly those the grid was built from, the few agents whose edges are drawn
-        are found in their own cells instead of by a pass over all agents.
-        """
-        g = self.grid.geometry
-        n_sel = len(self.selected_ids)
-        if n_sel == 0 or max_edges == 0:
-            return np.zeros((0, 2, g.dim), dtype=self.grid.real)
-        args = (self.slot, self.bits, self.word_rank, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
-                g.dim, self.grid.start, self.grid.mixed, self.grid.id_sorted, self.grid.pos_sorted,
-                self.grid.coords_sorted)
-        # count the pairs of the first agents only, a chunk at a time (sized by the edges an agent gave so far, with
-        # a margin), until they give max_edges: each agent costs a few cache misses (its cells lie anywhere in
-        # memory), and a few hundred agents fill the default 4000 edges where a large run draws tens of thousands
-        # counts, offsets and edges are NumPy arrays: a kernel writes them in place on the CPU (Taichi copies them to
-        # and from a GPU), where a Taichi ndarray would cost a copy each
-        # the counting pass's unused offsets and edges are arrays of their own: on a GPU each NumPy argument is
-        # copied back after the kernel, and an unwritten alias of `counts` copied back last would undo the counts
-        counts = np.zeros(n_sel, dtype=np.int32)
-        unused_offsets, unused_edges = np.zeros(1, dtype=np.int32), np.zeros((1, 2, g.dim), dtype=self.grid.real)
-        counted, total, chunk = 0, 0, self._first_chunk
-        while counted < n_sel and total < max_edges:
-            upto = min(n_sel, counted + chunk)
-            self._locate_rows(counted, upto, positions)
-            _pairs(counted, upto, *args, counts, unused_offsets, 0, 0, unused_edges)
-            total = int(counts[:upto].sum())
-            counted = upto
-            chunk = int(1.25 * (max_edges - total) * counted / total) + EDGE_CHUNK if total else 2 * chunk
-        # the agents whose edges are drawn; the next frame counts about as many in its first chunk (a swarm changes
-        # little from frame to frame: one counting launch instead of two or more)
-        needed = counted if total < max_edges else int(np.searchsorted(np.cumsum(counts[:counted]), max_edges)) + 1
-        self._first_chunk = int(1.1 * needed) + 8
-        total = min(total, max_edges)
-        edges = np.zeros((total, 2, g.dim), dtype=self.grid.real)
-        if total:
+
+class DrawnEdges:
+    """Neighbour edges among the drawn agents of a frame: a faithful sample of the R-graph (DESIGN.md section 5).
+
+    The drawn agents are a seeded random subset, taken in id order (their frame rows), so any first K of them are a
+    uniform sample spread over the whole swarm. :meth:`edges` draws the graph induced on the first K rows, all of
+    its pairs within R, with K as large as `max_edges` allows (all rows when their pairs fit). It finds them on a
+    grid of its own over those rows' positions (a frame's drawn agents are few and far between in the model's grid,
+    where each query would miss the cache), built over a power of two of rows: about as many as the last frame
+    needed, doubled until their pairs reach the cap.
+    """
+
+    def __init__(self, dim: int, boundary: str, box: float, radius: float, real: type) -> None:
+        self.dim, self.boundary, self.box, self.radius, self.real = dim, boundary, box, radius, real
+        self._grids: dict[int, tuple[CellGrid, ti.Ndarray, ti.Ndarray]] = {}
+        self._rows_needed = 0  # rows the last frame's edges came from
+
+    def _grid(self, rows: int) -> tuple[CellGrid, ti.Ndarray, ti.Ndarray]:
+        if rows not in self._grids:
+            ftype = ti.f32 if self.real == np.float32 else ti.f64
+            ids = ti.ndarray(ti.i32, rows)
+            ids.from_numpy(np.arange(rows, dtype=np.int32))
+            self._grids[rows] = (CellGrid(rows, self.dim, self.boundary, self.box, self.radius, self.real),
+                                 ti.ndarray(ftype, (self.dim, rows)), ids)
+        return self._grids[rows]
+
+    def edges(self, positions: np.ndarray, max_edges: int) -> np.ndarray:
+        """Segments (E, 2, dim), E <= max_edges: the pairs within R among the first K of the drawn agents at
+        `positions` (M, dim), each once, from the later row to the earlier (the far end by the minimum image, so
+        no edge spans a periodic box), rows in order."""
+        m = len(positions)
+        if m < 2 or max_edges <= 0:
+            return np.zeros((0, 2, self.dim), dtype=self.real)
+        rows = min(m, 1 << max(8, math.ceil(math.log2(max(1.25 * self._rows_needed, 1.0)))))
+        while True:
+            grid, pos, ids = self._grid(rows)
+            pos.from_numpy(np.ascontiguousarray(np.asarray(positions[:rows], dtype=self.real).T))
+            grid.build(pos, ids)
+            counts = np.zeros(rows, dtype=np.int32)  # written in place on the CPU (Taichi copies them on a GPU)
+            unused_offsets, unused_edges = np.zeros(1, dtype=np.int32), np.zeros((1, 2, self.dim), dtype=self.real)
+            args = self._arguments(grid)
+            _lower_pairs(rows, *args, counts, unused_offsets, 0, unused_edges)
+            total = np.cumsum(counts, dtype=np.int64)
+            if total[-1] > max_edges or rows == m:
+                break
+            rows = min(m, 2 * rows)
+        needed = int(np.searchsorted(total, max_edges, side="right"))  # rows whose pairs all fit
+        self._rows_needed = needed
+        count = int(total[needed - 1]) if needed else 0
+        edges = np.zeros((count, 2, self.dim), dtype=self.real)
+        if count:
             offsets = np.zeros(needed, dtype=np.int32)
-            offsets[1:] = np.cumsum(counts[: needed - 1])
-            _pairs(0, needed, *args, counts, offsets, total, 1, edges)
+            offsets[1:] = total[: needed - 1]
+            _lower_pairs(needed, *args, counts, offsets, 1, edges)
         return edges
+
+    def _arguments(self, grid: CellGrid) -> tuple:
+        g = grid.geometry
+        return (grid.slots(), self.radius, self.box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
+                grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted)

@@ -1,17 +1,26 @@
 """Rerun recording for tflock: the only module that talks to Rerun.
 
 The simulation hands a :class:`Recorder` plain NumPy arrays (a :class:`Frame` per drawn step and a mapping of
-metric values); the recorder lays them out as described in DESIGN.md section 5:
+metric values); the recorder lays them out as described in DESIGN.md section 5, for a person to read at the
+default view (docs/recordings.md shows and explains it):
 
 * timelines ``step`` (sequence) and ``time`` (duration, ``step * dt`` seconds); ``log_time`` is disabled so a
   recording only depends on what was logged;
-* ``world/agents`` (Points2D/3D), ``world/agents/headings`` (Arrows2D/3D), ``world/edges`` (LineStrips2D/3D),
-  ``world/leader`` (+ ``world/leader/heading``), ``world/bounds`` (static);
-* ``metrics/<name>``: one Scalars series per metric with a static SeriesLines naming it;
+* ``world/agents`` (Points2D/3D, sizes in UI points so that agents show at any box size; hovering one shows its
+  agent id), ``world/agents/headings`` (Arrows2D/3D, the velocity over the step just made, see
+  :mod:`tflock.frame`), ``world/agents/trails`` (optional), ``world/edges`` (thin translucent LineStrips among the
+  drawn agents), ``world/leader`` (+ ``world/leader/heading``), ``world/<marker>``, ``world/bounds`` (static);
+  in 2D ``world`` carries a transform that flips y, so that y points up as in the simulation's frame;
+* the coarse-grained field of all agents (:mod:`tflock.field`): a SegmentationImage under the agents at
+  ``world/field`` (2D), or three projections ``field/xy``, ``field/xz``, ``field/yz`` beside the 3D view;
+* ``legend``: what the colours mean (heading wheel, speed ramp or categories; the field's colours);
+* ``metrics/<name>``: one Scalars series per metric, plotted in groups (per-agent series in one plot, min / mean /
+  max together, energies together; series constant over the run in one plot of their own);
 * ``profiles/<name>``: a BarChart per drawn frame for each 1D profile the model declares (e.g. the density along
-  the mean heading, which shows travelling bands);
-* ``config`` (static markdown TextDocument holding the resolved TOML) and ``meta`` (static AnyValues);
-* a default blueprint: the world view beside stacked time-series views and the config.
+  the mean heading, which shows travelling bands), each in a tab of its own;
+* ``about`` (what is drawn, every metric's description), ``config`` (the resolved TOML) and ``meta`` (static);
+* a default blueprint: the world view largest, the legend beside it, the plots and documents in tabs below it,
+  side panels collapsed.
 
 :func:`read_recording`, :func:`verify_recording` and :func:`open_viewer` serve ``tflock inspect`` /
 ``tflock view`` and the tests.
@@ -19,16 +28,19 @@ metric values); the recorder lays them out as described in DESIGN.md section 5:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import math
 import os
 import re
 import shutil
+import socket
 import subprocess
 import sys
+import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -40,27 +52,36 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
-from tflock.frame import BOUNDARIES, Frame, Marker, WorldSpec, heading_colors
+from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
+from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
 
 __all__ = [
     "BOUNDARIES",
+    "ColorLegend",
     "Frame",
     "Recorder",
     "RecordingSummary",
     "WorldSpec",
     "heading_colors",
+    "metric_groups",
     "open_viewer",
     "read_recording",
     "rerun_executable",
     "verify_recording",
 ]
 
+WORLD = "world"
 AGENTS = "world/agents"
 HEADINGS = "world/agents/headings"
+TRAILS = "world/agents/trails"
 EDGES = "world/edges"
 LEADER = "world/leader"
 LEADER_HEADING = "world/leader/heading"
 BOUNDS = "world/bounds"
+FIELD_2D = "world/field"
+FIELD_3D = "field"
+LEGEND = "legend"
+ABOUT = "about"
 CONFIG = "config"
 META = "meta"
 METRICS = "metrics"
@@ -68,8 +89,10 @@ PROFILES = "profiles"
 
 SPAWN_PORT = 9876
 LEADER_COLOR = (255, 255, 255)
-EDGE_COLOR = (170, 170, 170, 90)
+EDGE_COLOR = (200, 200, 200, 110)
 BOUNDS_COLOR = (200, 200, 200)
+#: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
+DRAW_FIELD, DRAW_EDGES, DRAW_TRAILS, DRAW_ARROWS, DRAW_AGENTS, DRAW_MARKERS = -20.0, 0.0, 5.0, 10.0, 20.0, 30.0
 #: Rerun's batcher sends its pending rows on once they hold this many bytes (see :func:`batcher_config`)
 FLUSH_NUM_BYTES = 256 * 1024
 _METRIC_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
@@ -99,17 +122,64 @@ def _strips_type(dim: int) -> pa.DataType:
     return batch(np.zeros((0, 2, dim), np.float32)).as_arrow_array().type
 
 
-def _segments(edges: np.ndarray) -> pa.ListArray:
-    """An (E, 2, dim) float32 array as E two-point line strips, built directly in Arrow.
+def _strips(points: np.ndarray) -> pa.ListArray:
+    """An (S, K, dim) float32 array as S line strips of K points each, built directly in Arrow.
 
-    Equal to what ``LineStrips2D(edges)`` builds, but that path computes the offsets in a Python loop, one
-    iteration an edge; here they are one NumPy range.
+    Equal to what ``LineStrips2D(points)`` builds, but that path computes the offsets in a Python loop, one
+    iteration a strip; here they are one NumPy range.
     """
-    n, _, dim = edges.shape
+    n, k, dim = points.shape
     strips_type = _strips_type(dim)
-    points = pa.FixedSizeListArray.from_arrays(pa.array(edges.reshape(-1)), type=strips_type.value_type)
-    offsets = pa.array(np.arange(0, 2 * n + 1, 2, dtype=np.int32))
-    return pa.ListArray.from_arrays(offsets, points, type=strips_type)
+    flat = pa.FixedSizeListArray.from_arrays(pa.array(points.reshape(-1)), type=strips_type.value_type)
+    offsets = pa.array(np.arange(0, k * n + 1, k, dtype=np.int32))
+    return pa.ListArray.from_arrays(offsets, flat, type=strips_type)
+
+
+def point_radius(drawn: int) -> float:
+    """Radius of the drawn agents in UI points (screen pixels at 100 % zoom): about 2 for 2000 agents, from 4 for a
+    handful down to 1.25 (2.5 px across) for tens of thousands, so that agents show at the default view at any
+    box size while a dense sample does not merge into one blot."""
+    return float(np.clip(90.0 / math.sqrt(max(drawn, 1)), 1.25, 4.0))
+
+
+#: statistics suffixes and prefixes grouped into one plot (``valency_min``, ``mean_neighbors``, ...)
+_STATS = ("min", "mean", "max")
+_PER_AGENT = re.compile(r"^(.+)_(\d+)$")
+
+
+def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
+    """Plots of related metrics: plot name -> [(metric, short series name)], in the order of first appearance.
+
+    ``<base>_<i>`` (per-agent series, ``speed_3``: "agent 3"), ``<base>_<stat>`` and ``<stat>_<base>`` (stat one
+    of min / mean / max: ``valency_min``, ``mean_neighbors``) and ``<kind>_energy`` go to the plot ``<base>`` (or
+    ``energy``) with the others of their base; every other metric has a plot of its own.
+    """
+    keyed: dict[str, str] = {}  # metric -> group
+    label: dict[str, str] = {}
+    for name in names:
+        group, short = name, name
+        per_agent = _PER_AGENT.match(name)
+        head, _, tail = name.partition("_")
+        stem, _, last = name.rpartition("_")
+        if per_agent:
+            group, short = per_agent.group(1), f"agent {per_agent.group(2)}"
+        elif last in _STATS and stem:
+            group, short = stem, last
+        elif head in _STATS and tail:
+            group, short = tail, head
+        elif last == "energy" and stem:
+            group, short = "energy", stem
+        keyed[name], label[name] = group, short
+    members: dict[str, list[str]] = {}
+    for name in names:
+        members.setdefault(keyed[name], []).append(name)
+    out: dict[str, list[tuple[str, str]]] = {}
+    for group, names_in in members.items():
+        if len(names_in) == 1:  # alone: named as itself
+            out[names_in[0]] = [(names_in[0], names_in[0])]
+        else:
+            out[group] = [(n, label[n]) for n in names_in]
+    return out
 
 
 def _has_display() -> bool:
@@ -166,9 +236,16 @@ class Recorder:
         metrics_table: Path | None = None,
         application_id: str = "tflock",
         recording_id: str | None = None,
+        legend: ColorLegend | None = None,
+        field: bool = False,
+        trail: int = 0,
+        drawn: str = "",
     ) -> None:
         """``recording_id``: give a resumed run's new file the id of the first one, so that the viewer shows the
-        segments (``rerun first.rrd resumed.rrd``) as one recording on the same timelines."""
+        segments (``rerun first.rrd resumed.rrd``) as one recording on the same timelines. ``legend``: what the
+        agents' colours mean (default: no colour legend); ``field``: frames carry the field of all agents (its
+        views and legend are laid out); ``trail``: draw each drawn agent's last `trail` positions; ``drawn``: one
+        line on what is drawn (e.g. "2000 of 100000 agents"), for the about document."""
         for name in metrics:
             if not _METRIC_NAME.match(name):
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
@@ -183,10 +260,19 @@ class Recorder:
         self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
+        self.legend = legend
+        self.field = field
+        self.trail = trail
+        self.drawn = drawn
         self._closed = False
         self._edges_drawn = False
         self._leader_drawn = False
         self._leader_heading_drawn = False
+        self._ids: np.ndarray | None = None  # agent ids of the rows last logged
+        self._trail: list[np.ndarray] = []  # the drawn agents' last positions, oldest first
+        self._first_values: dict[str, float] = {}  # each metric's first value, while it has not changed
+        self._changed: set[str] = set()
+        self._metric_rows = 0
 
         sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
@@ -215,30 +301,84 @@ class Recorder:
             raise
 
     # ------------------------------------------------------------------ layout
-    def blueprint(self) -> rrb.Blueprint:
-        """The default layout: world view on the left, metric plots stacked with the config on the right."""
+    def blueprint(self, constant: tuple[str, ...] = ()) -> rrb.Blueprint:
+        """The default layout: the world view largest on the left; on the right the colour legend (and in 3D the
+        field's projections) above tabs of the metric plots (the `constant` series in one plot of their own), the
+        profiles' bar charts, the about document and the config. Side panels collapsed, the time panel a single bar."""
         world = self.world
         if world.dim == 2:
             bounds = None
             if world.bounded:
                 margin = 0.02 * world.box
-                span = [-margin, world.box + margin]
-                bounds = rrb.VisualBounds2D(x_range=span, y_range=span)
-            world_view: rrb.View = rrb.Spatial2DView(name="world", origin="/world", visual_bounds=bounds)
+                bounds = rrb.VisualBounds2D(x_range=[-margin, world.box + margin],
+                                            y_range=[-world.box - margin, margin])  # the flipped y of `world`
+            world_view: rrb.View = rrb.Spatial2DView(name="world", origin="/", contents=[f"/{WORLD}/**"],
+                                                     visual_bounds=bounds)
         else:
-            world_view = rrb.Spatial3DView(name="world", origin="/world")
-        plots = [rrb.TimeSeriesView(name=n, origin=f"/{METRICS}/{n}") for n in self.metrics]
-        plots += [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
-        config_view = rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")
-        if len(plots) > 4:
-            right = rrb.Vertical(rrb.Grid(*plots, grid_columns=2), config_view, row_shares=[4, 1])
-        else:
-            right = rrb.Vertical(*plots, config_view, row_shares=[2] * len(plots) + [1])
+            world_view = rrb.Spatial3DView(name="world", origin=f"/{WORLD}")
+        top: list[rrb.View] = [rrb.Spatial2DView(name="colours", origin=f"/{LEGEND}")] if self._has_legend() else []
+        if self.field and world.dim == 3:
+            top += [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
+                                      contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
+        plots = self._plots(constant)
+        metrics = (rrb.Grid(*plots, grid_columns=2 if len(plots) > 4 else 1, name="metrics") if len(plots) > 1
+                   else plots[0] if plots else None)
+        profiles = [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
+        tabs = [v for v in (metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
+                            rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")) if v is not None]
+        right: rrb.Container | rrb.View = rrb.Tabs(*tabs, active_tab=0)
+        if top:
+            right = rrb.Vertical(rrb.Horizontal(*top), right, row_shares=[1, 3 if len(top) == 1 else 2])
         return rrb.Blueprint(
             rrb.Horizontal(world_view, right, column_shares=[3, 2]),
-            rrb.TimePanel(timeline="step"),
-            collapse_panels=False,
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(state="collapsed", timeline="step"),
         )
+
+    def _has_legend(self) -> bool:
+        return self.legend is not None or self.field
+
+    def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
+        """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
+        varying = [n for n in self.metrics if n not in constant]
+        views = []
+        for group, members in metric_groups(varying).items():
+            views.append(rrb.TimeSeriesView(name=group, origin=f"/{METRICS}",
+                                            contents=[f"/{METRICS}/{m}" for m, _ in members],
+                                            plot_legend=rrb.PlotLegend(visible=1 < len(members) <= 6)))
+        if constant:
+            views.append(rrb.TimeSeriesView(name="constant: " + ", ".join(constant), origin=f"/{METRICS}",
+                                            contents=[f"/{METRICS}/{m}" for m in constant],
+                                            plot_legend=rrb.PlotLegend(visible=len(constant) <= 6)))
+        return views
+
+    def _about(self) -> str:
+        """Markdown: what the world view draws and every metric's description."""
+        world = self.world
+        lines = ["# What the views show", ""]
+        lines.append(f"**world**: {self.drawn or 'the agents'}; {world.dim}D, {world.boundary} boundary, box "
+                     f"{world.box:g}" + (", y up" if world.dim == 2 else "") + ". Hover an agent for its id.")
+        lines.append("")
+        lines.append("- **arrows**: each agent's velocity over the step just made, relative to the model's reference "
+                     "speed (a full-speed agent's arrow has the same length in every frame).")
+        lines.append("- **edges**: pairs within the interaction radius among the drawn agents (the graph induced on "
+                     "the first drawn agents, as many as the edge cap allows).")
+        if self.field:
+            where = "under the agents" if world.dim == 2 else "in the three projection views"
+            lines.append(f"- **field** ({where}): all agents binned into pixels; hue = the pixel's mean heading, "
+                         "brighter = denser (relative to the mean density), greyish = disordered. Hover a pixel.")
+        if self.trail:
+            lines.append(f"- **trails**: the last {self.trail} positions of each drawn agent.")
+        if self.legend is not None:
+            lines.append(f"- **{self.legend.title}**: see the colours view.")
+        for name, description in self.profiles.items():
+            lines.append(f"- **{name}** (bar chart, a tab of its own): {description}")
+        lines += ["", "# Metrics", "", "| plot | series | metric | description |", "|---|---|---|---|"]
+        for group, members in metric_groups(list(self.metrics)).items():
+            for name, short in members:
+                lines.append(f"| {group} | {short} | `{name}` | {self.metrics[name]} |")
+        return "\n".join(lines) + "\n"
 
     def _log_static(self) -> None:
         """Log everything that does not change over the run, once."""
@@ -253,6 +393,7 @@ class Recorder:
             f"Resolved configuration:\n\n{fence}toml\n{toml_text}\n{fence}\n"
         )
         rec.log(CONFIG, rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
         rec.log(
             META,
             rr.AnyValues(
@@ -262,11 +403,24 @@ class Recorder:
                 box=float(world.box),
                 dt=float(world.dt),
                 metrics=list(self.metrics),
+                metric_descriptions=list(self.metrics.values()),
             ),
             static=True,
         )
-        for name, description in self.metrics.items():
-            rec.log(f"{METRICS}/{name}", rr.SeriesLines(names=description), static=True)
+        for members in metric_groups(list(self.metrics)).values():
+            for name, short in members:
+                rec.log(f"{METRICS}/{name}", rr.SeriesLines(names=short, widths=1.5), static=True)
+        if world.dim == 2:  # y up: the 2D view draws y downwards
+            rec.log(WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        else:
+            rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if self.field:
+            colors = class_colors()
+            context = rr.AnnotationContext([rr.AnnotationInfo(id=k, label=label, color=tuple(int(c) for c in colors[k]))
+                                            for k, label in enumerate(class_labels())])
+            rec.log(FIELD_2D if world.dim == 2 else FIELD_3D, context, static=True)
+        if self._has_legend():
+            self._log_legend()
         if world.bounded:
             L = float(world.box)
             edge = rr.Radius.ui_points(1.0)
@@ -281,6 +435,51 @@ class Recorder:
                     static=True,
                 )
 
+    def _log_legend(self) -> None:
+        """The colours view (static, its own y-up picture): the hue wheel of headings as 24 arrows, or a column of
+        named colours; to its right the field's colours (a sweep of headings at three densities, and disordered)."""
+        rec, legend = self.rec, self.legend
+        x = 0.0
+        title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}
+        if legend is not None:
+            rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, -1.85]], labels=legend.title, **title), static=True)
+            if legend.wheel:
+                angle = np.arange(24) * (2 * math.pi / 24)
+                vectors = np.stack([np.cos(angle), -np.sin(angle)], axis=1).astype(np.float32)
+                rec.log(f"{LEGEND}/wheel", rr.Arrows2D(origins=np.zeros_like(vectors), vectors=vectors,
+                                                       colors=angle_colors(angle), radii=rr.Radius.ui_points(1.5)),
+                        static=True)
+                quarter = np.arange(4) * (math.pi / 2)
+                where = 1.3 * np.stack([np.cos(quarter), -np.sin(quarter)], axis=1).astype(np.float32)
+                rec.log(f"{LEGEND}/wheel/angles", rr.Points2D(where, radii=0.0, show_labels=True,
+                                                              labels=["0°", "90°", "180°", "270°"],
+                                                              colors=angle_colors(quarter)), static=True)
+                x = 2.2
+            else:
+                k = len(legend.entries)
+                where = np.stack([np.full(k, -0.8), np.linspace(-1.0, 1.0, k) if k > 1 else np.zeros(1)], axis=1)
+                entries = rr.Points2D(where.astype(np.float32), colors=[c for _, c in legend.entries],
+                                      labels=[label for label, _ in legend.entries], show_labels=True,
+                                      radii=rr.Radius.ui_points(6.0))
+                rec.log(f"{LEGEND}/entries", entries, static=True)
+                x = 2.4
+        if self.field:
+            colors = class_colors()[:, :3]
+            hues = np.arange(0, 24, 3)
+            swatches, swatch_colors = [], []
+            for row, (level, ordered) in enumerate([(4, 1), (2, 1), (0, 1), (2, 0)]):
+                for col, h in enumerate(hues):
+                    swatches.append((x + 0.22 * col, -0.9 + 0.55 * row))
+                    swatch_colors.append(colors[class_of(int(h), level, ordered)])
+            rec.log(f"{LEGEND}/field", rr.Points2D(np.array(swatches, np.float32), colors=np.array(swatch_colors),
+                                                   radii=rr.Radius.ui_points(6.0)), static=True)
+            notes = ["dense", "mean density", "sparse", "disordered"]
+            where = np.array([[x + 0.22 * len(hues) + 0.45, -0.9 + 0.55 * r] for r in range(4)], np.float32)
+            rec.log(f"{LEGEND}/field/levels", rr.Points2D(where, radii=0.0, labels=notes, show_labels=True,
+                                                          colors=[(200, 200, 200)] * 4), static=True)
+            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 0.8, -1.85]], labels="field of all agents", **title),
+                    static=True)
+
     # ------------------------------------------------------------------ logging
     def _set_time(self, step: int) -> None:
         if step < 0:
@@ -289,7 +488,8 @@ class Recorder:
         self.rec.set_time("time", duration=float(step) * self.world.dt)
 
     def log_frame(self, step: int, frame: Frame) -> None:
-        """Draw the agents (points + heading arrows), neighbour edges and leader at ``step``."""
+        """Draw the agents (points + velocity arrows), neighbour edges, leader, markers, trails and the field at
+        ``step``."""
         if not self.enabled:
             return
         dim = self.world.dim
@@ -306,27 +506,35 @@ class Recorder:
 
         if dim == 2:
             Points, Arrows, Strips = rr.Points2D, rr.Arrows2D, rr.LineStrips2D
+            order = {"draw_order": DRAW_AGENTS}
         else:
             Points, Arrows, Strips = rr.Points3D, rr.Arrows3D, rr.LineStrips3D
-        radius = float(frame.radius)
+            order = {}
+        radius = point_radius(pos.shape[0])
         rec = self.rec
         self._set_time(step)
-        rec.log(AGENTS, Points(pos, colors=colors, radii=radius))
+        self._log_ids(frame.ids, pos.shape[0])
+        rec.log(AGENTS, Points(pos, colors=colors, radii=rr.Radius.ui_points(radius), **order))
         rec.log(
             HEADINGS,
             Arrows(origins=pos, vectors=dirs * np.float32(frame.arrow_length), colors=colors,
-                   radii=0.3 * radius),
+                   radii=rr.Radius.ui_points(max(0.5, 0.4 * radius)),
+                   **({"draw_order": DRAW_ARROWS} if dim == 2 else {})),
         )
+        if self.trail:
+            self._log_trail(pos, colors, Strips)
         if edges is not None or self._edges_drawn:  # an empty batch clears edges drawn at earlier steps
             if edges is None:
                 edges = np.zeros((0, 2, dim), dtype=np.float32)
-            rec.log(EDGES, Strips(_segments(edges), colors=EDGE_COLOR, radii=rr.Radius.ui_points(0.75)))
+            rec.log(EDGES, Strips(_strips(edges), colors=EDGE_COLOR, radii=rr.Radius.ui_points(0.5),
+                                  **({"draw_order": DRAW_EDGES} if dim == 2 else {})))
             self._edges_drawn = True
+        markers = {"draw_order": DRAW_MARKERS} if dim == 2 else {}
         if frame.leader is not None or self._leader_drawn:
             lead = np.zeros((0, dim), np.float32)
             if frame.leader is not None:
                 lead = _f32("leader", np.reshape(frame.leader, (1, -1)), (1, dim))
-            rec.log(LEADER, Points(lead, colors=LEADER_COLOR, radii=2.5 * radius))
+            rec.log(LEADER, Points(lead, colors=LEADER_COLOR, radii=rr.Radius.ui_points(2.5 * radius), **markers))
             self._leader_drawn = True
             has_heading = frame.leader is not None and frame.leader_direction is not None
             if has_heading or self._leader_heading_drawn:
@@ -335,28 +543,84 @@ class Recorder:
                     d = _f32("leader_direction", np.reshape(frame.leader_direction, (1, -1)), (1, dim))
                     vec = d * np.float32(1.5 * frame.arrow_length)
                 rec.log(LEADER_HEADING, Arrows(origins=lead[: len(vec)], vectors=vec, colors=LEADER_COLOR,
-                                               radii=0.6 * radius))
+                                               radii=rr.Radius.ui_points(max(1.0, 0.8 * radius)), **markers))
                 self._leader_heading_drawn = True
         for marker in frame.markers:
             self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
+        for image in frame.fields:
+            self._log_field(image)
         for name, values in frame.profiles.items():
             rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
+
+    def _log_ids(self, ids: np.ndarray | None, m: int) -> None:
+        """The agent id of each row as its label (shown when hovering it), logged when the drawn agents change."""
+        if ids is None:
+            return
+        ids = np.asarray(ids)
+        if ids.shape != (m,):
+            raise ValueError(f"Frame.ids must have shape ({m},), got {ids.shape}")
+        if self._ids is not None and np.array_equal(self._ids, ids):
+            return
+        self._ids = ids.copy()
+        self._trail = []
+        fields = rr.Points2D.from_fields if self.world.dim == 2 else rr.Points3D.from_fields
+        self.rec.log(AGENTS, fields(labels=[f"agent {i}" for i in ids.tolist()], show_labels=False))
+
+    def _log_trail(self, pos: np.ndarray, colors: np.ndarray, Strips: type) -> None:
+        """Each drawn agent's last positions as one line strip, unwrapped across a periodic box's edges (drawn from
+        the agent's current position, so a trail may leave the box where the agent crossed its edge)."""
+        if self._trail and self._trail[-1].shape != pos.shape:
+            self._trail = []
+        self._trail = [*self._trail[-(self.trail - 1):], pos] if self.trail > 1 else [pos]
+        if len(self._trail) < 2:
+            return
+        points = np.stack(self._trail, axis=1)  # (M, K, dim), oldest first
+        if self.world.boundary == "periodic":
+            box = np.float32(self.world.box)
+            step = np.diff(points, axis=1)
+            step -= box * np.round(step / box)
+            points = points[:, -1:, :] - np.flip(np.cumsum(np.flip(step, axis=1), axis=1), axis=1)
+            points = np.concatenate([points, pos[:, None, :]], axis=1)
+        faded = (colors & np.uint32(0xFFFFFF00)) | np.uint32(110)
+        self.rec.log(TRAILS, Strips(_strips(np.ascontiguousarray(points, dtype=np.float32)), colors=faded,
+                                    radii=rr.Radius.ui_points(0.6),
+                                    **({"draw_order": DRAW_TRAILS} if self.world.dim == 2 else {})))
+
+    def _log_field(self, image: FieldImage) -> None:
+        """One projection of the field: the class image, placed on the world's (2D) or the plane's axes (3D, y up)
+        by a transform, with the number of agents it binned."""
+        classes = np.ascontiguousarray(image.classes)
+        if classes.dtype != np.uint8 or CLASSES > 256:
+            raise ValueError("a field image holds uint8 classes")
+        ox, oy = image.origin
+        px = float(image.pixel)
+        if self.world.dim == 2:
+            entity = FIELD_2D
+            transform = rr.Transform3D(translation=[ox, oy, 0.0], scale=[px, px, 1.0])
+            seg = rr.SegmentationImage(classes, draw_order=DRAW_FIELD, opacity=1.0)
+        else:
+            entity = f"{FIELD_3D}/{image.plane}"
+            transform = rr.Transform3D(translation=[ox, -oy, 0.0], scale=[px, -px, 1.0])
+            seg = rr.SegmentationImage(classes, opacity=1.0)
+        self.rec.log(entity, seg, transform, rr.AnyValues(agents=int(image.agents)))
 
     def _log_marker(self, marker: Marker, Points: type, Arrows: type, Strips: type, radius: float,
                     arrow_length: float) -> None:
         dim = self.world.dim
         entity = f"world/{marker.name}"
+        order = {"draw_order": DRAW_MARKERS} if dim == 2 else {}
         where = _f32(marker.name, np.reshape(marker.position, (1, -1)), (1, dim))
-        self.rec.log(entity, Points(where, colors=marker.color, radii=marker.size * radius))
+        self.rec.log(entity, Points(where, colors=marker.color, radii=rr.Radius.ui_points(marker.size * radius),
+                                    labels=marker.name.replace("_", " "), **order))
         if marker.direction is not None:
             vec = _f32(marker.name, np.reshape(marker.direction, (1, -1)), (1, dim)) * np.float32(1.5 * arrow_length)
             self.rec.log(f"{entity}/heading", Arrows(origins=where, vectors=vec, colors=marker.color,
-                                                    radii=0.6 * radius))
+                                                    radii=rr.Radius.ui_points(max(1.0, 0.8 * radius)), **order))
         if marker.circle is not None and dim == 2:
             angle = np.linspace(0.0, 2 * math.pi, 97, dtype=np.float32)
             ring = where[0] + np.float32(marker.circle) * np.stack([np.cos(angle), np.sin(angle)], axis=1)
             self.rec.log(f"{entity}/range", Strips([ring.astype(np.float32)], colors=(*marker.color, 140),
-                                                   radii=rr.Radius.ui_points(1.0)))
+                                                   radii=rr.Radius.ui_points(1.0), **order))
 
     def log_metrics(self, step: int, values: Mapping[str, float]) -> None:
         """Log one value per metric at ``step`` and append a row to the metrics table.
@@ -369,12 +633,22 @@ class Recorder:
                 f"unknown metric(s) {', '.join(sorted(unknown))}; declared: {', '.join(self.metrics)}"
             )
         self._set_time(step)
+        self._metric_rows += 1
         for name, value in values.items():
-            self.rec.log(f"{METRICS}/{name}", rr.Scalars(float(value)))
+            value = float(value)
+            self.rec.log(f"{METRICS}/{name}", rr.Scalars(value))
+            if name not in self._changed:
+                first = self._first_values.setdefault(name, value)
+                if first != value and not (math.isnan(first) and math.isnan(value)):
+                    self._changed.add(name)
         if self._csv_file is not None:
             cells = [repr(float(values[n])) if n in values else "" for n in self.metrics]
             self._csv.writerow([int(step), *cells])
             self._csv_file.flush()
+
+    def constant_metrics(self) -> tuple[str, ...]:
+        """The metrics logged with one value throughout so far (none before two rows of any metric)."""
+        return tuple(n for n in self.metrics if n in self._first_values and n not in self._changed)
 
     # ------------------------------------------------------------------ lifecycle
     def flush(self) -> None:
@@ -383,11 +657,17 @@ class Recorder:
         self.rec.flush()
 
     def close(self) -> None:
-        """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent."""
+        """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent.
+
+        The layout is sent again where the run had series that never changed: they share one plot, out of the way
+        of the others (the viewer opens a file with the last layout it holds)."""
         if self._closed:
             return
         self._closed = True
         try:
+            constant = self.constant_metrics()
+            if self.enabled and constant and len(constant) < len(self.metrics) and self._metric_rows > 1:
+                self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
             self.rec.disconnect()
         finally:
             if self._csv_file is not None:
@@ -417,7 +697,7 @@ class RecordingSummary:
     metric_rows: int  # rows of the longest metric series
     final_metrics: dict[str, float]  # value at the last step of each metric
     entities: list[str]  # recorded entity paths ("/world/agents", ...), sorted
-    metric_descriptions: dict[str, str] = field(default_factory=dict)  # metric name -> series name
+    metric_descriptions: dict[str, str] = field(default_factory=dict)  # metric name -> description
 
     @property
     def last_step(self) -> int | None:
@@ -467,14 +747,18 @@ def read_recording(path: Path) -> RecordingSummary:
 
             if entity == f"/{META}" and "model" in names:
                 model = str(_first(_column(batch, "model")))
+                if "metric_descriptions" in names:
+                    descriptions = dict(zip(_column(batch, "metrics")[0], _column(batch, "metric_descriptions")[0],
+                                            strict=True))
             elif entity == f"/{CONFIG}" and "TextDocument:text" in names:
                 doc = str(_first(_column(batch, "TextDocument:text")))
-            elif entity == f"/{AGENTS}" and "step" in names:
-                steps.extend(_column(batch, "step"))
+            elif entity == f"/{AGENTS}" and "step" in names:  # frames: rows with positions (not the ids' labels)
+                column = next((c for c in names if c.endswith(":positions")), None)
+                if column is not None:
+                    steps.extend(s for s, p in zip(_column(batch, "step"), batch.column(column).is_valid().to_pylist(),
+                                                   strict=True) if p)
             elif entity.startswith(prefix):
                 name = entity[len(prefix):]
-                if "SeriesLines:names" in names:
-                    descriptions[name] = str(_first(_column(batch, "SeriesLines:names")))
                 if "Scalars:scalars" in names and "step" in names:
                     pts = metric_points.setdefault(name, [])
                     rows = zip(_column(batch, "step"), _column(batch, "Scalars:scalars"), strict=True)
@@ -542,20 +826,73 @@ def verify_recording(path: Path) -> bool:
     return result.returncode == 0 and re.search(r"\b1 file verified without error", result.stderr) is not None
 
 
-def open_viewer(path: Path, web: bool = False, port: int = 9090, grpc_port: int = 9876) -> None:
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (the system's choice)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
+    """Wait until something accepts connections on `port` (RuntimeError if `proc` exits or `timeout` passes)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the Rerun web viewer exited (code {proc.returncode}) before serving port {port}")
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    raise RuntimeError(f"the Rerun web viewer did not serve port {port} within {timeout:g} s")
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _web_command(path: Path, port: int | None, grpc_port: int | None) -> tuple[list[str], int, str]:
+    """The command serving `path` in the web viewer, its HTTP port and the address to open (free ports where
+    None is given: several viewers can run at once)."""
+    port = free_port() if port is None else port
+    grpc_port = free_port() if grpc_port is None else grpc_port
+    cmd = [*rerun_executable(), "--serve-web", str(path), "--web-viewer-port", str(port), "--port", str(grpc_port)]
+    data_url = quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
+    return cmd, port, f"http://127.0.0.1:{port}/?url={data_url}"
+
+
+@contextlib.contextmanager
+def serve_web(path: Path, port: int | None = None, grpc_port: int | None = None,
+              timeout: float = 30.0) -> Iterator[str]:
+    """Serve a recording in Rerun's web viewer for the ``with`` block, which gets the address to open; the server
+    stops at its end. Ports as in :func:`open_viewer`."""
+    cmd, port, url = _web_command(Path(path), port, grpc_port)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_for_port(port, proc, timeout)
+        yield url
+    finally:
+        _stop(proc)
+
+
+def open_viewer(path: Path, web: bool = False, port: int | None = None, grpc_port: int | None = None) -> None:
     """Open a recording in the Rerun viewer; blocks until the viewer closes (native) or Ctrl-C (web).
 
-    ``web=True`` serves the web viewer on ``port`` (and the data over gRPC on ``grpc_port``) and prints the
-    URL to open; this works without a display. The native viewer needs one (RuntimeError otherwise).
+    ``web=True`` serves the web viewer over HTTP on ``port`` (the data over gRPC on ``grpc_port``) and prints the
+    address to open; this works without a display. Ports left None are free ones the system picks, so several
+    viewers can run at once. The native viewer needs a display (RuntimeError otherwise).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no recording at {path}")
     if web:
-        cmd = [*rerun_executable(), "--serve-web", str(path), "--web-viewer-port", str(port),
-               "--port", str(grpc_port)]
-        data_url = quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
-        print(f"Web viewer: http://127.0.0.1:{port}/?url={data_url}  (Ctrl-C to stop)", flush=True)
+        cmd, _, url = _web_command(path, port, grpc_port)
+        print(f"Web viewer: {url}  (Ctrl-C to stop)", flush=True)
     else:
         if not _has_display():
             raise RuntimeError(
@@ -566,9 +903,4 @@ def open_viewer(path: Path, web: bool = False, port: int = 9090, grpc_port: int 
     try:
         proc.wait()
     except KeyboardInterrupt:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop(proc)

@@ -2,8 +2,9 @@
 
 Metrics are computed at step 0 and every ``log.metrics_every`` steps (and at the last step), frames every
 ``log.every`` steps; both go to the recorder when one is attached. Before anything is kept or written for a step
-(metrics, a frame, a checkpoint), the non-finite guard checks the state: a nan or infinite position, heading or
-velocity stops the run with :class:`NumericalFaultError` (see there). A :class:`Simulation` is also the Python API:
+(metrics, a frame, a checkpoint), the guard checks the state: a nan or infinite position, heading or velocity, or
+a Lyapunov function risen beyond integration error (:mod:`tflock.stability`), stops the run with
+:class:`NumericalFaultError` (see there). A :class:`Simulation` is also the Python API:
 
     sim = Simulation("configs/vicsek.toml", params={"n": 5000}, steps=200)
     sim.run()
@@ -15,6 +16,7 @@ from __future__ import annotations
 import os
 import time
 import uuid
+import weakref
 import zipfile
 from collections.abc import Callable, Mapping
 from datetime import datetime
@@ -23,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from tflock.advice import warn_mistakes
 from tflock.config import (
     Config,
     ConfigError,
@@ -34,8 +37,11 @@ from tflock.config import (
 )
 from tflock.engine import EngineInfo, init_engine
 from tflock.models import model_class
-from tflock.preflight import check_memory, check_writable
+from tflock.models.base import Lyapunov
+from tflock.outputs import Outputs, claim, first_free
+from tflock.preflight import check_memory
 from tflock.rng import Stream, hash_np
+from tflock.stability import cheap_test, lyapunov_test
 
 #: the guard keeps a host copy of a good state when the time since the last copy is this many times what the copy
 #: took: copying costs about 0.5 % of the run, and a replay after a fault covers only the steps since the copy
@@ -43,18 +49,32 @@ GOOD_COPY_RATIO = 200
 
 
 class NumericalFaultError(RuntimeError):
-    """A non-finite position, heading or velocity stopped the run (the message is one line).
+    """A non-finite position, heading or velocity, or an unstable integration (:mod:`tflock.stability`), stopped
+    the run (the message is one line).
 
-    The run is replayed from the last kept good state, checking every step, to find the first bad ``step`` and
-    the smallest bad ``agent`` id; the simulation is left at the last good state (step - 1), whose checkpoint was
+    The run is replayed from the last kept good state, checking every step, to find the first bad ``step`` and,
+    for a non-finite state, the smallest bad ``agent`` id (for an unstable integration ``agent`` is None and
+    ``quantity`` is "integration"); the simulation is left at the last good state (step - 1), whose checkpoint was
     written to ``checkpoint`` (None if it could not be written), and its recording is closed: nothing is logged
-    for steps after the last one that passed the guard.
+    for steps after the last one that passed the guard (the Lyapunov test runs at metrics steps only, so frames
+    between two metrics steps passed the other tests alone).
     """
 
-    def __init__(self, message: str, *, model: str, step: int, agent: int, quantity: str,
+    def __init__(self, message: str, *, model: str, step: int, agent: int | None, quantity: str,
                  checkpoint: Path | None) -> None:
         super().__init__(message)
         self.model, self.step, self.agent, self.quantity, self.checkpoint = model, step, agent, quantity, checkpoint
+
+
+def non_finite_start(config: Config, step: int, agent: int, quantity: str, who: str = "") -> NumericalFaultError:
+    """The fault of a start state that is already non-finite (numbers beyond the range of the run's precision):
+    nothing runs or is written. `who` names the agent's replica in a batch of replicas."""
+    precision = config.engine.precision
+    largest = "3.4e38" if precision == "f32" else "1.8e308"
+    return NumericalFaultError(
+        f"numerical fault in {config.model} at step {step}: {who}agent {agent} has a non-finite {quantity} in the "
+        f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
+        model=config.model, step=step, agent=agent, quantity=quantity, checkpoint=None)
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
@@ -71,6 +91,18 @@ def drawn_subset(n: int, max_agents: int, seed: int) -> np.ndarray:
         return np.arange(n)
     keys = hash_np(seed, 0, np.arange(n), Stream.SUBSET)
     return np.sort(np.argpartition(keys, max_agents)[:max_agents])
+
+
+def field_pixels(n: int, drawn: int, setting: int) -> int:
+    """Pixels a side of the field of all agents in each frame (log.field): none when every agent is drawn, else
+    the setting, or for -1 :func:`tflock.field.field_size` of n."""
+    if drawn >= n or setting == 0:
+        return 0
+    if setting < 0:
+        from tflock.field import field_size
+
+        return field_size(n)
+    return setting
 
 
 CHECKPOINT_FORMAT = 1
@@ -108,16 +140,19 @@ class Simulation:
     ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer. ``checkpoint`` /
     ``checkpoint_every``: write :meth:`save_checkpoint` there every k steps (``checkpoint`` also receives the last
     good state after a :class:`NumericalFaultError`); ``resume``: continue from such a file (bit-identical to the
-    uninterrupted run; a recording goes to a new file with the same recording id). A config that needs more memory
-    than the machine has is a :class:`ConfigError`, and an output path that cannot be written an OSError, both
-    raised before anything is allocated or written.
+    uninterrupted run; a recording goes to a new file with the same recording id); ``checkpoint_every`` without
+    ``checkpoint`` writes ``<recording>.checkpoint.npz``. The run owns its outputs until :meth:`close`
+    (:mod:`tflock.outputs`): an output path another run holds, or that holds an earlier run's file (unless
+    ``overwrite``), is refused. A config that needs more memory than the machine has is a :class:`ConfigError`,
+    and an output path that cannot be written or is in use an OSError, all raised before anything is allocated
+    or written.
     """
 
     def __init__(self, config: str | Path | Mapping[str, Any] | Config | None = None, *,
                  model: str | None = None, overrides: list[str] | Mapping[str, Any] | None = None,
                  record: bool | str | Path = False, spawn: bool = False, connect: str | None = None,
                  resume: str | Path | None = None, checkpoint: str | Path | None = None,
-                 checkpoint_every: int = 0, **fields: Any) -> None:
+                 checkpoint_every: int = 0, overwrite: bool = False, **fields: Any) -> None:
         saved = None
         if resume is not None:  # the checkpoint carries the config
             saved = read_checkpoint(resume)
@@ -136,31 +171,74 @@ class Simulation:
             config = load_config(config, model=model, overrides=merged)
         self.config: Config = config
         record_path = None if not record else Path(record) if not isinstance(record, bool) else (
-            Path(config.log.out) if config.log.out else default_recording_path(config.model))
+            Path(config.log.out) if config.log.out else None)
         check_memory(config)
-        outputs = [(checkpoint, "checkpoint")]
-        if record_path is not None:
-            outputs += [(record_path, "recording"), (record_path.with_suffix(".metrics.csv"), "metrics table")]
-        for path, what in outputs:
-            if path is not None:
-                check_writable(Path(path), what)
+        self._outputs = Outputs()
+        weakref.finalize(self, self._outputs.release)  # a Simulation never closed lets go of its outputs at exit
+        self.recorder = None
+        try:
+            record_path, checkpoint = self._claim_outputs(
+                record_path, bool(record) and record_path is None, None if checkpoint is None else Path(checkpoint),
+                checkpoint_every, None if resume is None else Path(resume), overwrite)
+            self._start(saved, record_path, spawn, connect, checkpoint, checkpoint_every)
+        except BaseException:
+            self.close()
+            raise
+        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
+
+    def _claim_outputs(self, record_path: Path | None, default_name: bool, checkpoint: Path | None,
+                       checkpoint_every: int, resume: Path | None, overwrite: bool) -> tuple[Path | None, Path | None]:
+        """Check, lock and return the run's recording and checkpoint paths (:mod:`tflock.outputs`): a recording
+        named by tflock (`default_name`) takes the first free ``recordings/<model>-<time>[-k].rrd``; a checkpoint
+        every k steps without a path goes beside the recording (``.checkpoint.npz``)."""
+        if checkpoint is not None:
+            claim(checkpoint, "checkpoint", overwrite=overwrite, allowed=resume, into=self._outputs)
+
+        def attempt(recording: Path | None, base: Path | None) -> tuple[Path | None, Path | None]:
+            taken = Outputs()
+            try:
+                beside = None
+                if checkpoint is None and checkpoint_every and base is not None:
+                    beside = base.with_suffix(".checkpoint.npz")
+                    claim(beside, "checkpoint", overwrite=overwrite, allowed=resume, into=taken)
+                if recording is not None:
+                    claim(recording, "recording", [(recording.with_suffix(".metrics.csv"), "metrics table")],
+                          overwrite=overwrite, into=taken)
+            except BaseException:
+                taken.release()
+                raise
+            self._outputs.locks += taken.locks
+            return recording, checkpoint or beside
+
+        if default_name or (record_path is None and checkpoint is None and checkpoint_every):
+            return first_free(default_recording_path(self.config.model),
+                              lambda base: attempt(base if default_name else None, base))
+        return attempt(record_path, record_path)
+
+    def _start(self, saved: Mapping[str, Any] | None, record_path: Path | None, spawn: bool, connect: str | None,
+               checkpoint: Path | None, checkpoint_every: int) -> None:
+        """Build the model and the recorder, at the start or from a checkpoint (`saved`)."""
+        config = self.config
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
-        self.model = model_class(config.model)(config.params, config.seed, self.engine)
+        with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
+            self.model = model_class(config.model)(config.params, config.seed, self.engine)
         self._rows: list[dict[str, float]] = []
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
-        self.recorder = None
+        self._field_size = field_pixels(config.params.n, len(self._selected), config.log.field)
         self.files: list[Path] = []
         self.recording_id = uuid.uuid4().hex
-        self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
+        self.checkpoint_path = checkpoint
         self.checkpoint_every = checkpoint_every
         if saved is not None:
-            self._restore(saved)
+            with np.errstate(over="ignore", invalid="ignore"):
+                self._restore(saved)
         self._refuse_non_finite_start()
         if record_path is not None or spawn or connect:
             self._open_recorder(record_path, spawn, connect)
         if saved is None:
             self._observe(force=True)
         self._checked = self.model.step_index  # the last step whose state passed the guard (or the start)
+        self._lyapunov_start = self._start_lyapunov(saved)
         self._keep_good()
 
     @property
@@ -171,11 +249,15 @@ class Simulation:
         from tflock.record import Recorder
 
         table = path.with_suffix(".metrics.csv") if path is not None else None
-        self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
-                                 world=self.model.world(), metrics=self.model.metric_descriptions,
-                                 profiles=self.model.profile_descriptions,
-                                 path=path, spawn=spawn, connect=connect, metrics_table=table,
-                                 recording_id=self.recording_id)
+        n, log = self.config.params.n, self.config.log
+        drawn = f"{len(self._selected)} of {n} agents drawn (the same seeded subset every frame)"
+        with np.errstate(over="ignore"):  # a box beyond the float32 range of the drawing: its outline is at inf
+            self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
+                                     world=self.model.world(), metrics=self.model.metric_descriptions,
+                                     profiles=self.model.profile_descriptions,
+                                     path=path, spawn=spawn, connect=connect, metrics_table=table,
+                                     recording_id=self.recording_id, legend=self.model.color_legend,
+                                     field=self._field_size > 0, trail=log.trail, drawn=drawn)
         self.files = [p for p in (path, table) if p is not None]
 
     def _metrics_due(self, t: int) -> bool:
@@ -186,6 +268,10 @@ class Simulation:
 
     def _observe(self, force: bool = False) -> None:
         """Metrics and frame of the current step, at their cadences (or now, when forced)."""
+        with np.errstate(over="ignore"):  # a state that passed the guard: a square or a float32 drawing past the
+            self._observe_now(force)      # float range is inf, as it should be, without a NumPy warning
+
+    def _observe_now(self, force: bool) -> None:
         t = self.model.step_index
         if force or self._metrics_due(t):
             values = self.model.metrics()
@@ -193,7 +279,7 @@ class Simulation:
             if self.recorder is not None:
                 self.recorder.log_metrics(t, values)
         if self.recorder is not None and (force or self._frame_due(t)):
-            self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges))
+            self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges, self._field_size))
 
     def step(self, steps: int = 1, progress: Callable[[int], None] | None = None) -> None:
         """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.
@@ -205,8 +291,9 @@ class Simulation:
             t = self.model.step_index
             last = t == self.config.steps
             checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
-            if last or checkpoint or self._metrics_due(t) or self._frame_due(t):
-                self._guard()
+            full = last or checkpoint or self._metrics_due(t)  # where the stability guard's Lyapunov test runs
+            if full or self._frame_due(t):
+                self._guard(full)
             self._observe(force=last)
             if checkpoint:
                 self.save_checkpoint(self.checkpoint_path)
@@ -218,15 +305,15 @@ class Simulation:
         """A start state that is already non-finite (numbers beyond the float range) stops before anything is
         written."""
         found = self.model.first_non_finite()
-        if found is None:
-            return
-        agent, quantity = found
-        t, precision = self.model.step_index, self.config.engine.precision
-        largest = "3.4e38" if precision == "f32" else "1.8e308"
-        raise NumericalFaultError(
-            f"numerical fault in {self.config.model} at step {t}: agent {agent} has a non-finite {quantity} in the "
-            f"start state (engine.precision = {precision} holds magnitudes up to {largest}); nothing was written",
-            model=self.config.model, step=t, agent=agent, quantity=quantity, checkpoint=None)
+        if found is not None:
+            raise non_finite_start(self.config, self.model.step_index, *found)
+
+    def _start_lyapunov(self, saved: Mapping[str, Any] | None) -> Lyapunov | None:
+        """The Lyapunov function at step 0, the stability guard's reference: now, or as a checkpoint kept it."""
+        if saved is not None and "lyapunov_start" in saved:
+            name, kinetic, potential = (str(v) for v in saved["lyapunov_start"])
+            return Lyapunov(name, float(kinetic), float(potential))
+        return self.model.lyapunov()
 
     def _keep_good(self) -> None:
         """Keep a host copy of the current (good) state to replay from after a fault."""
@@ -235,17 +322,31 @@ class Simulation:
         self._good_at = time.perf_counter()
         self._good_cost = self._good_at - t0
 
-    def _guard(self) -> None:
-        """Check the state before anything of this step is kept: stop at a non-finite value, else now and then
-        keep a copy of this good state."""
-        found = self.model.first_non_finite()
-        if found is not None:
-            self._fault(found)
+    def _guard(self, full: bool = True) -> None:
+        """Check the state before anything of this step is kept: stop at a non-finite value or an unstable
+        integration (its Lyapunov test where `full`), else now and then keep a copy of this good state."""
+        problem = self._problem(full)
+        if problem is not None:
+            self._fault(problem)
         self._checked = self.model.step_index
         if time.perf_counter() - self._good_at >= GOOD_COPY_RATIO * self._good_cost:
             self._keep_good()
 
-    def _fault(self, seen: tuple[int, str]) -> None:
+    def _problem(self, full: bool = True) -> tuple[int | None, str, str] | None:
+        """What is wrong with the current state, ``(agent, quantity, what)``, or None: a non-finite position,
+        heading or velocity (the smallest bad agent), else an integration that left its stable range
+        (:mod:`tflock.stability`: the displacement test, and where `full` the Lyapunov test; agent None)."""
+        found = self.model.first_non_finite()
+        if found is not None:
+            agent, quantity = found
+            return agent, quantity, f"agent {agent} has a non-finite {quantity}"
+        unstable = cheap_test(self.model) or (lyapunov_test(self._lyapunov_start, self.model) if full else None)
+        if unstable is None:
+            return None
+        dt = getattr(self.config.params, "dt", None)
+        return None, "integration", unstable + ("" if dt is None else f"; lower params.dt (= {dt:g})")
+
+    def _fault(self, seen: tuple[int | None, str, str]) -> None:
         """Replay from the kept good state, checking every step after the last one that passed the guard, to the
         first bad step; save the state before it, close the recording and raise NumericalFaultError. `seen` is
         what the guard found at the current step."""
@@ -257,23 +358,30 @@ class Simulation:
         while found is None and self.model.step_index < detected:
             good = self.model.checkpoint()
             self.model.advance(1)
-            found = self.model.first_non_finite()
-        agent, quantity = found or seen  # steps are deterministic: the replay finds it again, at or before
+            found = self._problem(full=True)
+        agent, quantity, what = found or seen  # steps are deterministic: the replay finds it again, at or before
         bad = self.model.step_index
         self.model.restore(good, bad - 1)
         path = self.checkpoint_path or (
             self.recorder.path if self.recorder is not None and self.recorder.path is not None
             else default_recording_path(self.config.model)).with_suffix(".lastgood.npz")
         try:
+            if self.checkpoint_path is None and (self.recorder is None or self.recorder.path is None):
+                path = first_free(path, self._claim_lastgood)  # a name no other run writes or wrote
             saved: Path | None = self.save_checkpoint(path)
             where = f"the last good state (step {bad - 1}) is saved in {path}"
         except OSError as e:
             saved, where = None, f"the last good state (step {bad - 1}) could not be saved to {path}: {e.strerror or e}"
         self.close()
-        message = (f"numerical fault in {self.config.model} at step {bad}: agent {agent} has a non-finite {quantity}; "
+        message = (f"numerical fault in {self.config.model} at step {bad}: {what}; "
                    f"the run stopped (nothing after step {self._checked} is recorded) and {where}")
         raise NumericalFaultError(message, model=self.config.model, step=bad, agent=agent, quantity=quantity,
                                   checkpoint=saved)
+
+    def _claim_lastgood(self, path: Path) -> Path:
+        """Lock `path` for this run's last good state, refusing an earlier file there (:func:`tflock.outputs.claim`)."""
+        claim(path, "checkpoint", into=self._outputs)
+        return path
 
     def run(self, progress: Callable[[int], None] | None = None) -> None:
         """Step up to the configured number of steps."""
@@ -302,6 +410,8 @@ class Simulation:
         table = self.metrics()
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
         arrays.update({f"metrics__{k}": v for k, v in table.items()})
+        if self._lyapunov_start is not None:
+            arrays["lyapunov_start"] = np.array([str(v) for v in self._lyapunov_start])
         tmp = path.with_name(path.name + ".tmp")
         with open(tmp, "wb") as f:
             np.savez(f, **arrays, step=np.int64(self.model.step_index),
@@ -324,9 +434,12 @@ class Simulation:
         self.recording_id = str(checkpoint["recording_id"])
 
     def close(self) -> None:
-        """Finish the recording (idempotent)."""
-        if self.recorder is not None:
-            self.recorder.close()
+        """Finish the recording and let go of the run's outputs (idempotent)."""
+        try:
+            if self.recorder is not None:
+                self.recorder.close()
+        finally:
+            self._outputs.release()
 
     def __enter__(self) -> Simulation:
         return self

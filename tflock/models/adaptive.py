@@ -25,7 +25,8 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
-from tflock.frame import Frame, WorldSpec
+from tflock.field import UNIT_VECTORS
+from tflock.frame import Frame, WorldSpec, arrow_length
 from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
@@ -231,6 +232,7 @@ class Adaptive(GridModel):
         self._alpha = 0.0 if params.alpha == "inf" else float(params.alpha)
         self._tol = agreement_tolerance(np.dtype(real).itemsize)
         self._grid_step = -1  # step whose positions the grid holds
+        self._last_move: tuple[int, np.ndarray] | None = None  # (step of the frame, velocities) from draw_next
         self.tau = -1  # first step with mean speed >= 0.98 v0; -1 until reached
         self._replica_tau = np.full(replicas, -1)  # the same for each replica of a batch
         draws = [initial_draws(params, seed + r) for r in range(replicas)]
@@ -341,8 +343,8 @@ class Adaptive(GridModel):
         return {name: out[name] for name in self.metric_descriptions}
 
     # ------------------------------------------------------------------ drawing
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by heading, arrows of length proportional to the speed v0 phi^alpha."""
+    def _velocity_rows(self, selected: np.ndarray) -> np.ndarray:
+        """Rows (position, c_alpha(phi) d: the velocity / v0 of the next move, eq. 5) of the drawn agents now."""
         p = self.params
         drawing = self.drawing(selected)
         m = len(selected)
@@ -351,13 +353,31 @@ class Adaptive(GridModel):
             drawing.locate()
             _frame_rows(m, self._alpha, self._tol, self._mode, p.dim, drawing.slot,
                         self.grid.order, self.grid.pos_sorted, self.dirs, self.phi, rows)
-        spacing = p.box / p.n ** (1 / p.dim)
+        return rows
+
+    def invalidate(self) -> None:
+        super().invalidate()
+        self._last_move = None
+
+    def draw_next(self, selected: np.ndarray) -> None:
+        """Keep the drawn agents' velocities of the move the next step makes (eq. 5 uses phi(k) and d(k), which
+        that step replaces): the arrows of its frame show the move just made, as every model's do."""
+        self._last_move = (self.step_index + 1, self._velocity_rows(selected)[:, self.params.dim:])
+
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by heading, arrows of length proportional to the speed v0 phi^alpha of the move just made
+        (at the first frame, and one no step announced, the move about to be made)."""
+        p = self.params
+        rows = self._velocity_rows(selected)
+        moved = self._last_move
+        velocity = moved[1] if moved is not None and moved[0] == self.step_index else rows[:, p.dim:]
         return Frame(
             positions=rows[:, : p.dim].astype(np.float32),
-            directions=rows[:, p.dim:].astype(np.float32),
-            arrow_length=0.5 * p.radius,
-            edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
-            radius=min(0.15 * p.radius, 0.3 * spacing),
+            directions=velocity.astype(np.float32),
+            arrow_length=arrow_length(p.box, len(selected), p.dim),
+            edges=self._edges_among(rows[:, : p.dim], max_edges, p.radius),
+            ids=selected,
+            fields=self._field_images(field_size, self.pos, self.dirs, UNIT_VECTORS, self.grid),
         )
 
     def world(self) -> WorldSpec:

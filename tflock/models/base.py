@@ -2,14 +2,34 @@
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
-from tflock.frame import Frame, WorldSpec
+from tflock.field import Field, FieldImage
+from tflock.frame import HEADING_LEGEND, ColorLegend, Frame, WorldSpec
 from tflock.guard import Guarded, first_non_finite
-from tflock.neighbors import SubsetDrawing
+from tflock.neighbors import DrawnEdges, SubsetDrawing
+
+
+class Lyapunov(NamedTuple):
+    """A Lyapunov function of a model's continuous dynamics at the current state, which must not increase:
+    ``name`` (its metric's), its kinetic and potential parts."""
+
+    name: str
+    kinetic: float
+    potential: float
+
+    @property
+    def value(self) -> float:
+        return self.kinetic + self.potential
+
+    @property
+    def scale(self) -> float:
+        """The energy it holds, kinetic plus the magnitude of the potential part."""
+        return self.kinetic + abs(self.potential)
 
 
 class Model(ABC):
@@ -28,6 +48,10 @@ class Model(ABC):
     metric_descriptions: Mapping[str, str]
     #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
     profile_descriptions: Mapping[str, str] = {}
+    #: what the colours of the drawn agents mean (the recorder draws it beside the world view)
+    color_legend: ColorLegend = HEADING_LEGEND
+    _edge_finder: DrawnEdges | None = None
+    _field: Field | None = None
 
     @classmethod
     def can_batch(cls, params) -> bool:
@@ -58,12 +82,33 @@ class Model(ABC):
         """Metrics of the current state over all agents."""
 
     @abstractmethod
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """What to draw now: the `selected` agents (sorted ids) and up to `max_edges` neighbour edges."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """What to draw now: the `selected` agents (sorted ids), up to `max_edges` neighbour edges among them
+        (:class:`~tflock.neighbors.DrawnEdges`) and, with `field_size` > 0, the coarse-grained field of all agents
+        at most that many pixels a side (:class:`~tflock.field.Field`). Arrows follow the convention of
+        :mod:`tflock.frame`: the velocity over the step just made."""
 
     @abstractmethod
     def world(self) -> WorldSpec:
         """Geometry of the world for the recorder."""
+
+    def _edges_among(self, positions: np.ndarray, max_edges: int, radius: float) -> np.ndarray:
+        """Edges within `radius` among the drawn agents at `positions` (their frame rows), at most `max_edges`."""
+        if self._edge_finder is None:
+            world = self.world()
+            self._edge_finder = DrawnEdges(world.dim, world.boundary, world.box, radius, self.engine.real)
+        return self._edge_finder.edges(np.asarray(positions), max_edges).astype(np.float32)
+
+    def _field_images(self, size: int, pos: ti.Ndarray, dirs: ti.Ndarray, mode: int, grid=None,
+                      row: int = 0) -> list[FieldImage]:
+        """The field of all agents (`pos`, `dirs` in the same element order; `grid` built for `pos`), or none for
+        size 0."""
+        if size <= 0:
+            return []
+        world = self.world()
+        if self._field is None or self._field.size != size:
+            self._field = Field(self.params.n, world.dim, size)
+        return self._field.compute(pos, dirs, box=world.box, bounded=world.bounded, grid=grid, mode=mode, row=row)
 
     def first_non_finite(self) -> tuple[int, str] | None:
         """``(agent, quantity)`` of the smallest agent id with a non-finite position, heading or velocity (one
@@ -71,6 +116,17 @@ class Model(ABC):
         guarded = [Guarded(quantity, getattr(self, name)) for name, quantity in self.guarded_state.items()
                    if isinstance(getattr(self, name, None), ti.Ndarray)]
         return first_non_finite(guarded, self.ids)
+
+    def lyapunov(self) -> Lyapunov | None:
+        """The Lyapunov function of the model's equations at the current state, for models that have one (the
+        integrator-stability guard, :mod:`tflock.stability`, watches it); None for the others."""
+        return None
+
+    def step_spread(self) -> tuple[float, float] | None:
+        """For models with an integrator that can leave its stable range: how far apart two agents move in one
+        step at their current velocities, at least (dt times the largest spread of a velocity component), and the
+        length it must stay below (the stability guard's cheap test); None for the others."""
+        return None
 
     def checkpoint(self) -> dict[str, np.ndarray]:
         """Everything the model holds, exactly as held: its ndarrays (alone or in lists, e.g. double buffers,

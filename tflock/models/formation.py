@@ -22,9 +22,10 @@ on the VA, behind it (section 4), headings uniform in [0, 2 pi). One synchronous
    eps ~ U[-delta, delta] (``Stream.NOISE``), wrapped into [0, 2 pi).
 5. speed, eqs. (1)-(2): crossing the VAIR (inside at x(t) differs from the stored flag) starts a linear ramp
    from the current speed v_ini at t_s = t toward |va| (entering) or |vout| (leaving), lasting
-   dt_i = max(1, T + rnd), T = VAIR / (|vout| - |va|) ("time to move from the VAIR boundary to the VA's position",
-   at the closing speed of an agent chasing the VA: ``FormationParams.ramp_time``),
-   rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper: gamma ~ T; drawn from stream 300). The printed
+   dt_i = max(1, T + rnd), T = 2 VAIR / (|vout| - |va|) ("time to move from the VAIR boundary to the VA's
+   position": an agent chasing the VA closes on it at |vout| - |va|, falling linearly to 0 over the ramp, so at half
+   that on average; ``FormationParams.ramp_time``), rnd ~ U(-gamma, gamma), gamma = ``ramp_jitter`` T (the paper:
+   gamma ~ T, "a homogeneous distribution of agents inside the VAIR"; drawn from stream 300). The printed
    eq. (1), |v| = |va| - (|v_ini| - |va|)(t - t_f)/dt_i with t_f = t_s + dt_i, is that ramp (t - t_f <= 0);
    the printed eq. (2) runs backwards (it ends at |va|), so we read it as the same ramp toward |vout|:
    |v| = |vout| - (|vout| - |v_ini|)(t_f - t)/dt_i. The speed for the move t -> t+1 is
@@ -49,7 +50,8 @@ import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.fastmath import cos_sin, sin_cos
-from tflock.frame import Frame, Marker, WorldSpec
+from tflock.field import UNIT_VECTORS
+from tflock.frame import ColorLegend, Frame, Marker, WorldSpec, arrow_length
 from tflock.guard import NO_AGENT, Guarded, first_non_finite
 from tflock.metrics import BLOCK, n_blocks
 from tflock.models.base import Model
@@ -93,6 +95,13 @@ THETA, SPEED, RAMP_FROM, RAMP_DURATION = range(4)
 IN_FLAG, RAMP_START = range(2)
 RULE_COLORS = np.array([(235, 64, 52), (60, 200, 90), (70, 140, 240), (150, 150, 150)], dtype=np.uint8)
 VA_COLOR = (255, 210, 0)
+RULE_LEGEND = ColorLegend("agents: what drives them", entries=(
+    ("separation (Fs alone)", tuple(RULE_COLORS[SEPARATION].tolist())),
+    ("inside the VAIR", tuple(RULE_COLORS[INSIDE].tolist())),
+    ("outside the VAIR", tuple(RULE_COLORS[OUTSIDE].tolist())),
+    ("communication failure", tuple(RULE_COLORS[FAILED].tolist())),
+    ("virtual agent (VA) and VAIR", VA_COLOR),
+))
 SETTLED_TOL = 1e-6  # |speed - |va|| <= SETTLED_TOL |va| counts as "the speed of the VA" (Definition 1)
 #: radians: where the angle to a force's target lies this far beyond the cap (and this far short of a reversal), the
 #: capped turn is taken without atan2 (see :func:`capped_turn`)
@@ -466,6 +475,7 @@ def _frame_rows(m: ti.i32, n: ti.i32, selected: ti.types.ndarray(), ids: ti.type
         out[r, 1] = pos[1, e]
         out[r, 2] = f[THETA, e]
         out[r, 3] = rule[e]
+        out[r, 4] = f[SPEED, e]
 
 
 class Formation(Model):
@@ -475,6 +485,7 @@ class Formation(Model):
     """
 
     name = "formation"
+    color_legend = RULE_LEGEND
 
     def __init__(self, params: FormationParams, seed: int, engine: EngineInfo) -> None:
         super().__init__(params, seed, engine)
@@ -638,32 +649,37 @@ class Formation(Model):
         }
 
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
-        """(m, 4) rows x, y, theta, rule of agents[:m]."""
+        """(m, 5) rows x, y, theta, rule, speed of agents[:m]."""
         k = self.cur
-        out = ti.ndarray(self.pos[k].dtype, (max(1, m), 4))
+        out = ti.ndarray(self.pos[k].dtype, (max(1, m), 5))
         if m:
             _frame_rows(m, self.params.n, agents, self.ids[k], self.where, self.pos[k], self.f[k], self.rule, out)
         return out.to_numpy()[:m]
 
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
         """Agents coloured by what drives them this step (red: separation, green: inside the VAIR, blue: outside,
-        grey: communication failure) with heading arrows; the VA with its heading and VAIR circle."""
+        grey: communication failure) with arrows of their velocity / |vout|, edges within the vision radius; the VA
+        with its heading and VAIR circle."""
         p = self.params
         ids = ti.ndarray(ti.i32, max(1, len(selected)))
         if len(selected):
             ids.from_numpy(np.asarray(selected, dtype=np.int32))
         rows = self._rows(ids, len(selected))
-        directions = np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1).astype(np.float32)
+        relative = rows[:, 4] / p.out_speed
+        directions = (np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1) * relative[:, None]).astype(np.float32)
         va_heading = ref.va_direction(p).astype(np.float32)
-        marker = Marker("virtual_agent", self.va_position().astype(np.float32), va_heading, circle=p.vair,
-                        color=VA_COLOR)
+        marker = Marker("virtual_agent", self.va_position().astype(np.float32), va_heading * p.va_speed / p.out_speed,
+                        circle=p.vair, color=VA_COLOR)
+        k = self.cur
         return Frame(
             positions=rows[:, :2].astype(np.float32),
             directions=directions,
-            arrow_length=0.5 * p.radius,
+            arrow_length=arrow_length(p.world, len(selected)),
             colors=RULE_COLORS[rows[:, 3].astype(np.int64)],
-            radius=0.5,
+            edges=self._edges_among(rows[:, :2], max_edges, p.radius),
             markers=[marker],
+            ids=selected,
+            fields=self._field_images(field_size, self.pos[k], self.trig, UNIT_VECTORS),
         )
 
     def world(self) -> WorldSpec:

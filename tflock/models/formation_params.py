@@ -70,7 +70,7 @@ class FormationParams(BaseModel):
     ramp_jitter: Float = Field(
         1.0, ge=0, le=1,
         description="gamma / T of the speed ramps, in [0, 1]: a ramp lasts dt_i = T + rnd, rnd ~ U(-gamma, gamma), "
-                    "T = vair / (out_speed - va_speed) (eqs. 1-2; the paper uses gamma ~ T)",
+                    "T = 2 vair / (out_speed - va_speed) (eqs. 1-2; the paper uses gamma ~ T)",
     )
     fail_prob: Float = Field(
         0.0, ge=0, le=1, description="communication failure p in [0, 1]: an agent ignores all stimuli for one step",
@@ -90,13 +90,19 @@ class FormationParams(BaseModel):
 
     @property
     def ramp_time(self) -> float:
-        """T of the speed ramps (eqs. 1-2), "the approximate time for the agent to move from the VAIR boundary to
-        the VA's position": an agent at |vout| closes on the VA at |vout| - |va|, so T = vair / (|vout| - |va|).
-        With the jitter gamma = T a ramp's length is uniform in (0, 2T) and the depth an entering agent gains on
-        the VA, (|vout| - |va|) dt_i / 2, uniform in (0, vair): the paper's "homogeneous distribution of agents
-        inside the VAIR". Equal speeds make the ramps flat and T moot (vair / |va| then)."""
+        """T of the speed ramps (eqs. 1-2): "the approximate time for the agent to move from the VAIR boundary to
+        the VA's position" while it slows down. An agent chasing the VA enters at |vout| and closes on it at
+        |vout| - |va|; eq. (1) brings that closing speed linearly to 0 over the ramp, so a ramp of length dt gains
+        (|vout| - |va|) dt / 2 on the VA, and the VA is reached when that equals the VAIR:
+        T = 2 vair / (|vout| - |va|) (125 tu at the paper's 25 bl, 1.4 and 1 bl/tu). With the jitter gamma = T a
+        ramp's length is uniform in (0, 2T) and the depth gained uniform in (0, 2 vair): an agent entering from
+        straight behind comes to rest anywhere on the VAIR's diameter, behind or in front of the VA, the paper's
+        "homogeneous distribution of agents inside the VAIR". (In whole steps the gain is
+        (|vout| - |va|)(K - K (K + 1) / (2 dt)), K = floor(dt): half a step's worth less.) Equal speeds make the
+        ramps flat and T moot (2 vair / |va| then)."""
         closing = self.out_speed - self.va_speed
-        return self.vair / closing if closing > 0 else self.vair / self.va_speed
+        return 2 * self.vair / (closing if closing > 0 else self.va_speed)
+
     @model_validator(mode="after")
     def _cross_field_rules(self) -> FormationParams:
         if self.min_separation > self.radius:

@@ -26,6 +26,7 @@ local. Both must not increase (dW/dt = -v^T (L x I) v, eq. 8 and 12) beyond the 
 """
 
 
+import functools
 import math
 from collections.abc import Mapping
 
@@ -33,9 +34,10 @@ import numpy as np
 import taichi as ti
 
 from tflock.engine import EngineInfo
-from tflock.frame import Frame, WorldSpec, color_table, look_up
-from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
-from tflock.models.base import GridModel
+from tflock.field import VECTORS
+from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
+from tflock.metrics import BLOCK, EXACT_PAIRS_MAX, NeighbourGraph, n_blocks, total
+from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
 from tflock.neighbors import (
@@ -52,13 +54,15 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.taichi_host import host_view
 
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
 LAMBDA2_MAX = 1000
 
-_SPEED_RAMP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=np.float64)
+#: slow to fast: blue, sky, green, yellow, red; every stop bright enough to see on the viewer's dark background
+_SPEED_RAMP = np.array([[96, 110, 255], [0, 190, 255], [40, 215, 110], [240, 215, 40], [255, 80, 60]], dtype=np.float64)
 
 
 def potential_np(r2: np.ndarray, d2: float) -> np.ndarray:
@@ -79,8 +83,9 @@ _SPEED_PALETTE = color_table(_speed_palette(_SPEED_LEVELS))
 
 
 def speed_colors(speed: np.ndarray, scale: float) -> np.ndarray:
-    """(M, 3) uint8: speed / scale in [0, 1] on a viridis-like ramp (slow dark blue, fast yellow), looked up in a
-    table of 1024 levels, within one level of each channel of the ramp itself (one gather, no per-agent maths)."""
+    """(M, 3) uint8: speed / scale in [0, 1] on a ramp from blue (slow) over green and yellow to red (fast), looked
+    up in a table of 1024 levels, within one level of each channel of the ramp itself (one gather, no per-agent
+    maths)."""
     t = np.clip(np.asarray(speed, dtype=np.float32) * np.float32(1.0 / scale), 0.0, 1.0)
     return look_up(_SPEED_PALETTE, np.rint(t * np.float32(_SPEED_LEVELS - 1)).astype(np.int64))
 
@@ -91,6 +96,32 @@ def _pair_acceleration(p, v, q, w, d2):
     dvec = q - p
     r2 = dvec.norm_sqr()
     return (w - v) + 2.0 * (r2 - d2) / (r2 * r2) * dvec
+
+
+@functools.lru_cache(maxsize=4)
+def _block_partials(shape: tuple[int, int], dtype) -> ti.Ndarray:
+    """Scratch for :func:`_velocity_blocks` (kept out of the model: checkpoints hold the model's own arrays)."""
+    return ti.ndarray(dtype, shape)
+
+
+@ti.kernel
+def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), partial: ti.types.ndarray()):
+    """For each block of BLOCK agents: every velocity component's max (partial[b, a]) and min (partial[b, dim + a]),
+    and the sum of |v_i|^2 (partial[b, 2 dim]); the blocks are reduced in NumPy, the same whatever the threads."""
+    for blk in range(partial.shape[0]):
+        lo = blk * BLOCK
+        hi = ti.min(n, lo + BLOCK)
+        squares = 0.0
+        for a in ti.static(range(dim)):
+            big = vel[a, lo]
+            small = vel[a, lo]
+            for i in range(lo, hi):
+                big = ti.max(big, vel[a, i])
+                small = ti.min(small, vel[a, i])
+                squares += vel[a, i] * vel[a, i]
+            partial[blk, a] = big
+            partial[blk, dim + a] = small
+        partial[blk, 2 * dim] = squares
 
 
 @ti.kernel
@@ -378,9 +409,13 @@ class Potential(GridModel):
         self.vel.from_numpy(np.ascontiguousarray(np.asarray(state["v"]).T, dtype=real))
         self.ids.from_numpy(np.arange(self.params.n, dtype=np.int32))
         self.step_index = step
-        self._grid_step = -1
+        self.invalidate()
         self._lambda2_step = -1  # step of the last lambda_2 (plain numbers: checkpoints keep them)
         self._lambda2_value = 0.0
+
+    def invalidate(self) -> None:
+        super().invalidate()
+        self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -448,16 +483,53 @@ class Potential(GridModel):
         _grid_pairs(p.n, p.radius**2, d2, v_cut, self.dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start,
                     grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
 
+    def _pair_energies(self) -> None:
+        """Each agent's half of its pair potentials in ``energy`` (switching: also ``valency`` and ``nearest``),
+        once per step: the stability guard and the metrics share them."""
+        if self._pairs_step == (self.step_index,):
+            return
+        if self.switching:
+            self._ensure_grid()
+            self._grid_pairs(self.valency, self.energy)
+        else:
+            p = self.params
+            _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
+        self._pairs_step = (self.step_index,)
+
+    def lyapunov(self) -> Lyapunov:
+        """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic
+        energy 1/2 sum |v_i|^2 and the pair potentials. Both must not increase (eqs. 8 and 12) but by the
+        integration error."""
+        self._pair_energies()
+        v = host_view(self.vel)  # the sum in the run's precision, no temporary: close enough for a 100 % slack
+        squares = float(np.einsum("ij,ij->", v, v)) if v is not None else self.kernel_velocity_stats()[2]
+        return Lyapunov("Q" if self.switching else "W", 0.5 * squares, total(self.energy, self.params.n))
+
+    def step_spread(self) -> tuple[float, float]:
+        """dt max_a (max_i v_ia - min_i v_ia), at most the largest relative displacement of two agents in a step,
+        and the desired distance d, the length over which the potential changes (Definition 2)."""
+        v = host_view(self.vel)
+        big, small = (v.max(axis=1), v.min(axis=1)) if v is not None else self.kernel_velocity_stats()[:2]
+        return self.params.dt * float((big - small).max()), self.params.desired_distance
+
+    def kernel_velocity_stats(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Each velocity component's max and min over the agents, and sum_i |v_i|^2, from a kernel's block
+        partials: the stability guard's numbers on GPU arches (the CPU reads the ndarray's memory in NumPy)."""
+        n, dim = self.params.n, self.dim
+        partial = _block_partials((n_blocks(n), 2 * dim + 1), self.vel.dtype)
+        _velocity_blocks(n, dim, self.vel, partial)
+        partial = partial.to_numpy().astype(np.float64)
+        return partial[:, :dim].max(axis=0), partial[:, dim:2 * dim].min(axis=0), float(partial[:, 2 * dim].sum())
+
     def metrics(self) -> dict[str, float]:
         p = self.params
-        n, d2 = p.n, p.desired_distance**2
+        n = p.n
         self._ensure_grid()
+        self._pair_energies()
         if self.switching:
-            self._grid_pairs(self.valency, self.energy)
             graph = self.graph.compute(p.radius, p.box)
             components = graph["clusters"]
         else:
-            _csr_energy(n, d2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
             components = 1.0  # validated connected, and fixed
             if n > EXACT_PAIRS_MAX:
                 self._grid_pairs(self._grid_valency, self._grid_energy)
@@ -510,12 +582,14 @@ class Potential(GridModel):
                     self.pos, self.vel, out)
         return out.astype(np.float64)
 
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by speed, velocity arrows, and the interaction graph's edges (the fixed graph, or the
-        current switching one)."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by speed, velocity arrows, and the interaction graph's edges among the drawn agents (the
+        fixed graph, or the current switching one)."""
         p, dim = self.params, self.dim
+        grid = None
         if self.switching:  # the drawing's grid, built for the edges, gives the rows too
             drawing = self.drawing(selected)
+            grid = self.grid
             drawn = self._rows_written(drawing)  # by the lane-wise step, for a frame draw_next announced
             if drawn is None:
                 drawn = np.zeros((2, len(selected), dim), dtype=self.engine.real)
@@ -524,34 +598,48 @@ class Potential(GridModel):
                     _drawn_gather(len(selected), dim, drawing.slot, self.grid.order, self.grid.pos_sorted, self.vel,
                                   drawn)
             pos, vel = drawn[0], drawn[1]
-            edges = drawing.edges(p.box, p.radius, max_edges, positions=pos)
+            edges = self._edges_among(pos, max_edges, p.radius)
         else:
             rows = self._rows(selected)
             pos, vel = rows[:, :dim], rows[:, dim:]
             edges = self._fixed_edges(selected, pos, max_edges)
-        with np.errstate(over="ignore"):  # an f64 run on its way to a fault exceeds float32 first: drawn as inf
+        with np.errstate(over="ignore", invalid="ignore"):  # an f64 run on its way to a fault exceeds float32 first
             return Frame(
                 positions=np.asarray(pos, dtype=np.float32),
-                directions=np.asarray(vel, dtype=np.float32),
-                arrow_length=p.desired_distance / p.speed,
+                directions=np.asarray(vel / p.speed, dtype=np.float32),
+                arrow_length=arrow_length(p.box, len(selected), dim),
                 colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
                 edges=np.asarray(edges, dtype=np.float32),
-                radius=0.1 * p.desired_distance,
+                ids=selected,
+                fields=self._field_images(field_size, self.pos, self.vel, VECTORS, grid),
             )
 
+    @property
+    def color_legend(self) -> ColorLegend:
+        """The speed ramp's colours at five speeds from 0 to the initial speed bound (faster agents: its end)."""
+        speed = self.params.speed
+        stops = np.linspace(0.0, speed, 5)
+        colors = speed_colors(stops, speed)
+        labels = [f"|v| = {v:.3g}" for v in stops[:-1]] + [f"|v| >= {speed:.3g}"]
+        return ColorLegend("agents: speed |v|", entries=tuple(
+            (label, (int(c[0]), int(c[1]), int(c[2]))) for label, c in zip(labels, colors, strict=True)))
+
     def _fixed_edges(self, selected: np.ndarray, pos: np.ndarray, max_edges: int) -> np.ndarray:
-        """Edges of the fixed graph from each drawn agent (in id order) to its neighbours, at most max_edges."""
-        mask = np.zeros(self.params.n, dtype=bool)
-        mask[selected] = True
-        a, b = self.edges[:, 0], self.edges[:, 1]
-        keep = mask[a] | mask[b]
-        a, b = a[keep], b[keep]
-        order = np.lexsort((np.maximum(a, b), np.minimum(a, b)))[:max_edges]
-        a, b = a[order], b[order]
-        ends = np.unique(np.concatenate([a, b]))
-        rows = self._rows(ends)[:, : self.dim]
-        return np.stack([rows[np.searchsorted(ends, a)], rows[np.searchsorted(ends, b)]], axis=1).reshape(
-            -1, 2, self.dim)
+        """Edges of the fixed graph among the drawn agents: the graph induced on the first K of them (in id order),
+        K as large as max_edges allows, as the switching topology's :class:`~tflock.neighbors.DrawnEdges`."""
+        rank = np.full(self.params.n, -1, dtype=np.int64)
+        rank[selected] = np.arange(len(selected))
+        ra, rb = rank[self.edges[:, 0]], rank[self.edges[:, 1]]
+        keep = (ra >= 0) & (rb >= 0)
+        ra, rb = ra[keep], rb[keep]
+        later = np.maximum(ra, rb)  # an edge belongs to its later row, as DrawnEdges counts them
+        order = np.lexsort((np.minimum(ra, rb), later))
+        ra, rb, later = ra[order], rb[order], later[order]
+        per_row = np.bincount(later, minlength=len(selected)).cumsum() if len(later) else np.zeros(0, np.int64)
+        rows = int(np.searchsorted(per_row, max_edges, side="right"))
+        count = int(per_row[rows - 1]) if rows else 0
+        ra, rb = ra[:count], rb[:count]
+        return np.stack([pos[np.maximum(ra, rb)], pos[np.minimum(ra, rb)]], axis=1).reshape(-1, 2, self.dim)
 
     def world(self) -> WorldSpec:
         return WorldSpec(dim=self.dim, boundary="open", box=self.params.box, dt=self.dt)

@@ -177,16 +177,21 @@ def fixed_graph_edges(n: int, graph: str, seed: int, graph_p: float = 0.3, graph
 STREAM_SPEED = 200
 #: rounds of redrawing too-close agents before giving up
 PLACEMENT_ROUNDS = 500
+#: cells per axis at most in the placement grid: (2**20 + 3)**3 keys fit in an int64
+GRID_CELLS = 2**20
 
 
 def _too_close(x: np.ndarray, candidates: np.ndarray, placed: np.ndarray, separation: float) -> np.ndarray:
     """Which of `candidates` lie closer than `separation` to a placed agent or to a candidate with a smaller id.
 
     A hashed grid of cells of side `separation` over all positions; each candidate looks at the 3^dim cells
-    around its own (vectorised over candidates, looping over the few agents a cell holds).
+    around its own (vectorised over candidates, looping over the few agents a cell holds). Cells are widened where
+    the box spans more than :data:`GRID_CELLS` of them per axis, so that the cell keys fit in 64 bits (a wider cell
+    still holds every agent within `separation` of its neighbours).
     """
     n, dim = x.shape
-    cell = np.floor(x / separation).astype(np.int64)
+    width = max(separation, float((x.max(axis=0) - x.min(axis=0)).max()) / GRID_CELLS)
+    cell = np.floor(x / width).astype(np.int64)
     cell -= cell.min(axis=0) - 1
     side = cell.max(axis=0) + 2
     strides = np.cumprod(np.concatenate(([1], side[:-1])))

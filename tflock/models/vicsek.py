@@ -15,7 +15,9 @@ One synchronous step t -> t+1 for every agent i:
    - ``laplacian``: Jadbabaie eqs. (17)-(20) with G = gI: theta_i + (1/g) sum (theta_j - theta_i), g > n;
 3. turn limit, 003 eq. (7a): theta_i + clamp(phi, -alpha, alpha), phi the desired turn (eqs. 8-10; wrapped into
    [-pi, pi) for ``vector`` and ``relative``); alpha = 360 degrees is no limit for any rule;
-4. noise xi ~ U[-eta/2, eta/2] (Vicsek 1995), then headings are wrapped into [0, 2 pi) (003's convention); with
+4. noise xi ~ U[-eta/2, eta/2] (Vicsek 1995), then headings are wrapped into [0, 2 pi) (003's convention; with
+   ``wrap_headings`` false they stay real numbers, after a wall reflection too: the other reading of 003, which
+   changes only the rules that use angle values themselves, ``average`` and ``laplacian``); with
    ``noise_type = "vectorial"`` (Gregoire & Chate 2004; Chate et al. 2008, the vector rule only) there is no xi:
    instead a unit vector at angle 2 pi u, weighted by eta (1 + n_i), joins the sum of step 2 before its angle is
    taken, so the noise acts on what the agent perceives rather than on its decision;
@@ -39,7 +41,18 @@ import taichi as ti
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, sin_cos
-from tflock.frame import Frame, WorldSpec, angle_colors
+from tflock.field import ANGLES, UNIT_VECTORS
+from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
+from tflock.lane_graph import (
+    NO_LABEL,
+    LaneComponents,
+    block_roots,
+    degree_stats,
+    fold_label,
+    join_candidate,
+    settle_block,
+    stripe_range,
+)
 from tflock.metrics import (
     EXACT_PAIRS_MAX,
     SAMPLED_PAIRS,
@@ -79,6 +92,7 @@ from tflock.space import (
     wrap_pi,
     wrap_two_pi,
 )
+from tflock.taichi_host import host_view
 from tflock.topological import cell_side, nearest
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
@@ -107,7 +121,8 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, speed: float, noise: float,
           box: float, max_turn: float, inv_g: float, bound: ti.i32,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
-          vectorial: ti.template(), nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+          vectorial: ti.template(), wrap: ti.template(), nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(),
+          mixed: ti.types.ndarray(),
           order: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
           coords_sorted: ti.types.ndarray(),
           payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
@@ -194,7 +209,9 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                 phi = acc_a / (1.0 + count)
             else:
                 phi = inv_g * (acc_a - count * th_i)
-            new = wrap_two_pi(th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi)
+            new = th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi
+            if ti.static(wrap):
+                new = wrap_two_pi(new)
         sin_new, cos_new = sin_cos(new)
         q = p + speed * ti.Vector([cos_new, sin_new])
         if ti.static(boundary == PERIODIC):
@@ -205,7 +222,8 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                 new = math.pi - new
             if flips[1] == 1:
                 new = -new
-            new = wrap_two_pi(new)
+            if ti.static(wrap):
+                new = wrap_two_pi(new)
         pos[0, s] = q[0]
         pos[1, s] = q[1]
         theta[s] = new
@@ -327,10 +345,127 @@ def _list_sums(n: ti.i32, k: ti.template(), rule: ti.template(), nbr: ti.types.n
         sums[2, s] = 1.0 + k
 
 
+PLAIN, BEFORE, BLOCK = 0, 1, 2  # candidates of a stripe's block (see _neighbour_sums_graph)
+
+
+@ti.func
+def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+                      pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
+                      minimum_image: ti.template(), part: ti.template()):
+    """:func:`_accumulate` with the count for every rule, and for the components (tflock.lane_graph): candidates
+    before the block in the stripe (`part` BEFORE) fold their set label into each near lane's `label`
+    (tflock.lane_graph.fold_label), the block's own agents (BLOCK) set their bit in `inmask`. The sums are added as
+    :func:`_accumulate` adds them, in the same order."""
+    metric = ti.static(PERIODIC if minimum_image else REFLECTING)
+    for k in range(begin, end):
+        xk = pos_sorted[0, k]
+        if xk > 2 * box:  # never; keeps LLVM's loop vectoriser off this loop, as in _accumulate
+            break
+        dx = displacement(px, xk, box, metric)
+        dy = displacement(py, pos_sorted[1, k], box, metric)
+        near = dx * dx + dy * dy <= r2
+        if ti.static(rule == VECTOR or rule == VECTOR_COUNTED):
+            acc_a += ti.select(near, payload[0, k], 0.0)
+            acc_b += ti.select(near, payload[1, k], 0.0)
+        elif ti.static(rule == RELATIVE):
+            acc_a += ti.select(near, wrap_pi(payload[2, k] - th), 0.0)
+        else:
+            acc_a += ti.select(near, payload[2, k], 0.0)
+        count += ti.select(near, 1.0, 0.0)
+        if ti.static(part == BEFORE):
+            label, other = fold_label(label, other, near, parent[k])
+        elif ti.static(part == BLOCK):
+            inmask |= ti.select(near, 1 << (k - i0), 0)
+    return acc_a, acc_b, count, label, other, inmask
+
+
+@ti.func
+def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2, box,
+                   pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
+                   minimum_image: ti.template()):
+    """The span [begin, end) in slot order, cut where its candidates stop being in an earlier stripe, before the
+    block, in the block [i0, i1) and after it."""
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        begin, ti.min(end, s_lo), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted,
+        payload, parent, rule, minimum_image, PLAIN)
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        ti.max(begin, s_lo), ti.min(end, i0), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+        pos_sorted, payload, parent, rule, minimum_image, BEFORE)
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        ti.max(begin, i0), ti.min(end, i1), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+        pos_sorted, payload, parent, rule, minimum_image, BLOCK)
+    return _accumulate_graph(ti.max(begin, i1), end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
+                             pos_sorted, payload, parent, rule, minimum_image, PLAIN)
+
+
+@ti.kernel
+def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, radius: float,
+                          box: float, rule: ti.template(), boundary: ti.template(), start: ti.types.ndarray(),
+                          run_end: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
+                          sums: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
+    """:func:`_neighbour_sums` for a state whose metrics are taken: the same sums, the count 1 + n_i for every rule
+    (the neighbour counts), and the components of the R-graph in ``parent`` (stripes of layers, see
+    tflock.lane_graph; LaneComponents.finish completes them)."""
+    ti.loop_config(block_dim=1)  # a stripe a task
+    for j in range(n_stripes):
+        r2 = radius * radius
+        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for b in range(b_lo, b_hi):
+            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+            wraps = run_wraps(row, x0, x1, nc, boundary)
+            for block in range((a1 - a0 + LANES - 1) // LANES):
+                i0 = a0 + block * LANES
+                i1 = ti.min(i0 + LANES, a1)
+                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+                th = lanes(payload, 2, i0, a1 - 1, LANES)
+                acc_a = ti.Vector([0.0] * LANES)
+                acc_b = ti.Vector([0.0] * LANES)
+                count = ti.Vector([0.0] * LANES)
+                label = ti.Vector([NO_LABEL] * LANES)
+                other = ti.Vector([NO_LABEL] * LANES)
+                inmask = ti.Vector([0] * LANES)
+                for r in range(3):
+                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                    for h in range(2):
+                        begin = ti.select(h == 0, b0, b1)
+                        end = ti.select(h == 0, e0, e1)
+                        if wraps:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, True)
+                        else:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, False)
+                for k in ti.static(range(LANES)):
+                    if i0 + k < a1:
+                        sums[0, i0 + k] = acc_a[k]
+                        sums[1, i0 + k] = acc_b[k]
+                        sums[2, i0 + k] = count[k]
+                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                    bit = recheck & (-recheck)
+                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                    p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
+                    root = -1
+                    for r in range(3):
+                        b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                        for h in range(2):
+                            first = ti.max(s_lo, ti.select(h == 0, b0, b1))
+                            for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
+                                d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
+                                if d.norm_sqr() <= r2:
+                                    root = join_candidate(root, k, parent, size)
+                    roots[q] = root
+                    recheck ^= bit
+                settle_block(i0, i1 - i0, roots, inmask, parent, size)
+
+
 @ti.func
 def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
                   rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
-                  vectorial: ti.template(),
+                  vectorial: ti.template(), wrap: ti.template(),
                   id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
                   pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
                   turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
@@ -363,7 +498,9 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         phi = acc_a / count
     else:
         phi = inv_g * (acc_a - count * th)
-    new = wrap_two_pi(th + ti.math.clamp(phi, -max_turn, max_turn) + xi)
+    new = th + ti.math.clamp(phi, -max_turn, max_turn) + xi
+    if ti.static(wrap):
+        new = wrap_two_pi(new)
     update = local >= 0  # synchronous: every agent updates
     if ti.static(leader):
         update = local != 0  # the leader keeps theta0 (Jadbabaie eq. 22)
@@ -378,7 +515,9 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         qx, flip_x = reflect(qx, box)
         qy, flip_y = reflect(qy, box)
         new = ti.select(flip_x == 1, math.pi - new, new)
-        new = wrap_two_pi(ti.select(flip_y == 1, -new, new))
+        new = ti.select(flip_y == 1, -new, new)
+        if ti.static(wrap):
+            new = wrap_two_pi(new)
         sin_new, cos_new = sin_cos(new)  # trig holds sin_cos(theta) exactly, as cos_sin computes it
     change = ti.abs(wrap_pi(new - th))
     for k in ti.static(range(width)):
@@ -405,7 +544,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
 @ti.kernel
 def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
             max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
-            batched: ti.template(), vectorial: ti.template(), id_sorted: ti.types.ndarray(),
+            batched: ti.template(), vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
             pos_sorted: ti.types.ndarray(),
             payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
             theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
@@ -415,12 +554,12 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // UPDATE_WIDTH):
         _update_lanes(b * UPDATE_WIDTH, UPDATE_WIDTH, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
-                      boundary, leader, batched, vectorial, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids,
-                      turn, updated, draw, bits, word_rank, drawn)
+                      boundary, leader, batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta,
+                      trig, ids, turn, updated, draw, bits, word_rank, drawn)
     for s in range(n // UPDATE_WIDTH * UPDATE_WIDTH, n):
         _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                      batched, vectorial, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
-                      draw, bits, word_rank, drawn)
+                      batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn,
+                      updated, draw, bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -486,6 +625,9 @@ class Vicsek(GridModel):
     """
 
     name = "vicsek"
+    #: (step, grid build) whose neighbour sums metrics() already computed for the next step (a tuple, which
+    #: checkpoint() leaves out)
+    _summed: tuple[int, int] | None = None
 
     @classmethod
     def can_batch(cls, params: VicsekParams) -> bool:
@@ -559,7 +701,10 @@ class Vicsek(GridModel):
         self.trig = ti.ndarray(ftype, (2, m))  # cos and sin of theta, element by element
         self.nbr = ti.ndarray(ti.i32, (params.k if self.topological else 1, m))
         self.rings = ti.ndarray(ti.i32, m)
-        self.graph = NeighbourGraph(self.grid)
+        # components: found by the lane-wise pass itself (lane_graph; metric neighbours only, as lane_wise is), else
+        # by the graph kernels of tflock.metrics
+        self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise and replicas == 1 else None
+        self.graph = None if self.components is not None else NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
@@ -626,8 +771,8 @@ class Vicsek(GridModel):
                 _step(self.step_index, self.seed, self.n_total, p.n, p.radius, p.speed, p.noise, p.box,
                       math.radians(p.max_turn_deg), inv_g, p.async_bound,
                       RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
-                      p.noise_type == "vectorial", g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed,
-                      self.grid.order,
+                      p.noise_type == "vectorial", p.wrap_headings, g.cells_per_side, g.n_buckets, self.grid.start,
+                      self.grid.mixed, self.grid.order,
                       self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
                       self.theta, self.ids, self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
             self.step_index += 1
@@ -636,11 +781,13 @@ class Vicsek(GridModel):
         p, grid = self.params, self.grid
         g, rule, boundary = grid.geometry, RULES[p.rule], boundary_code(p.boundary)
         vectorial = p.noise_type == "vectorial"
-        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
-        _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, VECTOR_COUNTED if vectorial else rule,
-                        boundary, grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums)
+        if self._summed != (self.step_index, grid.builds):  # not yet summed by metrics() for this state
+            _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+            _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, VECTOR_COUNTED if vectorial else rule,
+                            boundary, grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
-                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, vectorial, grid.id_sorted, grid.pos_sorted,
+                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, vectorial, p.wrap_headings,
+                grid.id_sorted, grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
 
@@ -655,8 +802,8 @@ class Vicsek(GridModel):
         _list_sums(self.n_total, p.k, rule, self.nbr, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
                 inv_g, rule, g.boundary, p.leader.enabled, self.replicas > 1, p.noise_type == "vectorial",
-                grid.id_sorted, grid.pos_sorted, self.payload, self.sums, self.pos, self.theta, self.trig, self.ids,
-                self.turn, self.updated, *self._draw_arguments(3, 2))
+                p.wrap_headings, grid.id_sorted, grid.pos_sorted, self.payload, self.sums, self.pos, self.theta,
+                self.trig, self.ids, self.turn, self.updated, *self._draw_arguments(3, 2))
 
     def metrics(self) -> dict[str, float]:
         if self.replicas > 1:
@@ -664,18 +811,42 @@ class Vicsek(GridModel):
         p = self.params
         self._ensure_grid()
         leader_heading = float(self._rows(self._leader_id, 1)[0, 2]) if p.leader.enabled else 0.0
-        polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
-        out = {"polarization": polarization, "mean_heading": mean_heading}
-        out.update(self.graph.compute(p.radius, p.box))
+        if self.components is not None:
+            out = self._lane_wise_metrics()
+            if p.leader.enabled:
+                leader_gap = heading_order(self.theta, p.n, leader_heading)[2]
+        else:
+            polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
+            out = {"polarization": polarization, "mean_heading": mean_heading}
+            out.update(self.graph.compute(p.radius, p.box))
         pairs = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2, self.seed,
                                 self.step_index)
         out.update(zip(self._pair_names, pairs, strict=True))
         out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
-        heading = np.array([[math.cos(mean_heading), math.sin(mean_heading)]])
+        heading = np.array([[math.cos(out["mean_heading"]), math.sin(out["mean_heading"])]])
         out.update({k: float(v[0]) for k, v in self.observables.compute(self.pos, self.ids, heading).items()})
         return {name: out[name] for name in self.metric_descriptions}
+
+    def _lane_wise_metrics(self) -> dict[str, float]:
+        """Order parameter and R-graph metrics from the next step's own neighbour pass, run now (its sums are kept
+        for that step): the headings' cos and sin in cell order, each agent's neighbour count and the clusters."""
+        p, grid = self.params, self.grid
+        g, boundary = grid.geometry, boundary_code(p.boundary)
+        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
+        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
+                              grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
+                              self.components.parent, self.components.size)
+        self._summed = (self.step_index, grid.builds)
+        clusters, largest = self.components.finish(p.radius, p.box, boundary)
+        payload, sums = host_view(self.payload), host_view(self.sums)  # lane-wise: on the CPU
+        c, s = payload[0].sum(dtype=np.float64), payload[1].sum(dtype=np.float64)
+        mean_neighbors, max_neighbors = degree_stats(sums[2])
+        return {"polarization": math.hypot(c, s) / p.n, "mean_heading": math.atan2(s, c) % TWO_PI,
+                "clusters": float(clusters), "largest_cluster": largest / p.n, "mean_neighbors": mean_neighbors,
+                "max_neighbors": max_neighbors}
 
     def replica_metrics(self) -> dict[str, np.ndarray]:
         """:meth:`metrics` of each replica of a batch: one array of length ``replicas`` per metric."""
@@ -687,6 +858,8 @@ class Vicsek(GridModel):
         theta = theta.reshape(replicas, n)
         c, s = np.cos(theta).sum(axis=1), np.sin(theta).sum(axis=1)
         out = {"polarization": np.hypot(c, s) / n, "mean_heading": np.arctan2(s, c) % TWO_PI}
+        if self.graph is None:  # a batch of one on the lane-wise step, whose metrics() finds components itself
+            self.graph = NeighbourGraph(self.grid)
         out.update(self.graph.compute_replicas(p.radius, p.box))
         pairs = replica_pairwise_errors(self.grid, self.pos, self.theta, p.box, boundary_code(p.boundary), 2)
         out.update(zip(self._pair_names, pairs, strict=True))
@@ -699,8 +872,9 @@ class Vicsek(GridModel):
         out.update(self.observables.compute(self.pos, self.ids, np.stack([c, s], axis=1)))
         return {name: out[name] for name in self.metric_descriptions}
 
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by heading; with asynchrony, those that did not update at this step are dimmed."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by heading, arrows along it (the heading of the step just made); with asynchrony,
+        those that did not update at this step are dimmed."""
         p = self.params
         drawing = self.drawing(selected)
         grid = self.grid
@@ -720,17 +894,22 @@ class Vicsek(GridModel):
             x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
+        if self.lane_wise or self.topological:  # the step keeps cos and sin of every heading
+            fields = self._field_images(field_size, self.pos, self.trig, UNIT_VECTORS, grid)
+        else:
+            fields = self._field_images(field_size, self.pos, self.theta, ANGLES, grid)
         heading = heading_order(self.theta, p.n)[1] if self.observables.enabled else 0.0
         profiles = self.observables.frame_profiles(self.pos, self.ids, np.array([math.cos(heading), math.sin(heading)]))
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
-            arrow_length=0.5 * p.radius,
+            arrow_length=arrow_length(p.box, len(selected)),
             colors=colors,
-            edges=drawing.edges(p.box, p.radius, max_edges, positions=drawn[0]).astype(np.float32),
+            edges=self._edges_among(drawn[0], max_edges, p.radius),
             leader=leader,
             leader_direction=leader_direction,
-            radius=0.15 * p.radius,
+            ids=selected,
+            fields=fields,
             profiles=profiles,
         )
 

@@ -28,7 +28,8 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
-from tflock.frame import Frame, WorldSpec
+from tflock.field import UNIT_VECTORS
+from tflock.frame import Frame, WorldSpec, arrow_length
 from tflock.metrics import BLOCK, NeighbourGraph, mean, n_blocks
 from tflock.models.adaptive import cone_noise
 from tflock.models.base import GridModel
@@ -276,8 +277,9 @@ class Vicsek3D(GridModel):
         return {name: out[name] for name in self.metric_descriptions}
 
     # ------------------------------------------------------------------ drawing
-    def frame(self, selected: np.ndarray, max_edges: int) -> Frame:
-        """Agents coloured by the hue of their heading's planar angle, arrows along it."""
+    def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
+        """Agents coloured by the hue of their heading's planar angle, arrows along it (the direction of the step
+        just made, at unit speed), the field of all agents in three projections."""
         p = self.params
         drawing = self.drawing(selected)
         m = len(selected)
@@ -292,9 +294,10 @@ class Vicsek3D(GridModel):
         return Frame(
             positions=rows[:, :3].astype(np.float32),
             directions=rows[:, 3:].astype(np.float32),
-            arrow_length=0.5 * p.radius,
-            edges=drawing.edges(p.box, p.radius, max_edges).astype(np.float32),
-            radius=0.15 * p.radius,
+            arrow_length=arrow_length(p.box, m, 3),
+            edges=self._edges_among(rows[:, :3], max_edges, p.radius),
+            ids=selected,
+            fields=self._field_images(field_size, self.pos, self.dirs, UNIT_VECTORS, self.grid),
             profiles=profiles,
         )
 

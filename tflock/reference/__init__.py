@@ -100,12 +100,14 @@ def apply_boundary(x: np.ndarray, boundary: str, box: float) -> tuple[np.ndarray
     return x, flip
 
 
-def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float):
-    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading."""
+def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float, wrap: bool = True):
+    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading (a reflected
+    heading wrapped into [0, 2 pi) unless `wrap` is false)."""
     x, flip = apply_boundary(x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1), boundary, box)
     if boundary == "reflecting":
         theta = np.where(flip[:, 0], math.pi - theta, theta)
-        theta = wrap_two_pi(np.where(flip[:, 1], -theta, theta).astype(x.dtype))
+        theta = np.where(flip[:, 1], -theta, theta).astype(x.dtype)
+        theta = wrap_two_pi(theta) if wrap else theta
     return x, theta
 
 
@@ -132,12 +134,13 @@ def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: Vic
 
 def turn_and_noise(theta: np.ndarray, phi: np.ndarray, t: int, params: VicsekParams, seed: int) -> np.ndarray:
     """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2] (angular noise; vectorial noise is in phi),
-    headings wrapped into [0, 2 pi)."""
+    headings wrapped into [0, 2 pi) (unless ``params.wrap_headings`` is false)."""
     alpha = math.radians(params.max_turn_deg)
     xi = 0.0
     if params.noise_type == "angular":
         xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
-    return wrap_two_pi((theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype))
+    new = (theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype)
+    return wrap_two_pi(new) if params.wrap_headings else new
 
 
 def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
@@ -148,7 +151,7 @@ def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, 
     new = turn_and_noise(theta, desired_turn(theta, a, seen, params, t, seed), t, params, seed)
     if params.leader.enabled:
         new[0] = theta[0]
-    return move(x, new, params.speed, params.boundary, params.box)
+    return move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
 
 
 def async_draws(seed: int, t: int, omega: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +190,7 @@ def vicsek_step_async(hist_x: np.ndarray, hist_theta: np.ndarray, omega: np.ndar
     np.fill_diagonal(a, 0)
     new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params, t, seed), t, params, seed)
     new = np.where(update, new, theta).astype(theta.dtype)
-    x_new, theta_new = move(x, new, params.speed, params.boundary, params.box)
+    x_new, theta_new = move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
     hist_x, hist_theta = hist_x.copy(), hist_theta.copy()
     hist_x[(t + 1) % ring], hist_theta[(t + 1) % ring] = x_new, theta_new
     return hist_x, hist_theta, np.where(update, 1, omega + 1), update
@@ -233,6 +236,23 @@ def pairwise_errors(x: np.ndarray, theta: np.ndarray, boundary: str, box: float)
     th = theta.astype(np.float64)
     angle = np.abs(wrap_pi(th[None, :] - th[:, None]))[upper]
     return float(dist.mean()), float(angle.mean())
+
+
+def pairwise_errors_sampled(x: np.ndarray, theta: np.ndarray, boundary: str, box: float, seed: int, step: int,
+                            samples: int) -> tuple[float, float]:
+    """:func:`pairwise_errors` estimated from `samples` ordered pairs of array elements (i, j), i != j, drawn
+    uniformly from (seed, step, sample) as tflock.metrics does above its exact range."""
+    n = len(theta)
+    m = np.arange(samples)
+    i = randint_np(hash_np(seed, step, m, Stream.PAIR_I), n)
+    j = randint_np(hash_np(seed, step, m, Stream.PAIR_J), n - 1)
+    j = j + (j >= i)
+    x64 = x.astype(np.float64)
+    d = x64[i] - x64[j]
+    if boundary == "periodic":
+        d -= box * np.round(d / box)
+    th = theta.astype(np.float64)
+    return float(np.sqrt((d * d).sum(axis=1)).mean()), float(np.abs(wrap_pi(th[i] - th[j])).mean())
 
 
 def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams, previous_theta: np.ndarray,

@@ -131,7 +131,7 @@ def speed_update(state: dict[str, np.ndarray], inside: np.ndarray, t: int, param
     """Speed for the move t -> t+1 by the ramps of eqs. (1)-(2), and the new ramp state.
 
     A crossing of the VAIR (inside now differs from the stored flag) starts a ramp from the current speed v_ini
-    at t_s = t, lasting dt_i = max(1, T + rnd), T = ``params.ramp_time`` = vair / (|vout| - |va|),
+    at t_s = t, lasting dt_i = max(1, T + rnd), T = ``params.ramp_time`` = 2 vair / (|vout| - |va|),
     rnd ~ U(-gamma, gamma), gamma = ramp_jitter T;
     the speed at step t+1 is v_ini + (target - v_ini) min(1, (t + 1 - t_s) / dt_i), target |va| inside and |vout|
     outside, and exactly the target once the ramp ends.

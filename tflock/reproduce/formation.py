@@ -10,28 +10,33 @@ rho, their mean distance to the VA.
 - Fig. 4: over alpha_a, alpha_c, alpha_av, alpha_cv in {1, ..., 10} (about 44,000 configurations, 10 runs each),
   among the configurations that reach the DF in all runs, the extremes: min tau = 871 (S-2.2), max tau = 1971
   (S-1.1), min phi = 0.09 (S-1.3), max phi = 0.36 (S-1.4), min rho = 5.20 (S-1.2), max rho = 13.88 (S-2.4), with
-  their weights. We run those six configurations (10 replicas), and a REDUCED grid: every weight in {1, 3, 10}
-  (27 configurations for the S-x.1 and S-x.2 strategies, which do not use alpha_c, 81 for the others: 432 in all,
-  1 % of the paper's) with 5 replicas each instead of 10. Fig. 6 (the convergence ratio of S-2.2 over alpha_a and
-  alpha_av) comes out of the same grid.
+  their weights. We run those six configurations (10 replicas, as the paper), and a REDUCED grid: every weight
+  at 1 or 10 (8 configurations for the S-x.1 and S-x.2 strategies, which do not use alpha_c, 16 for the others),
+  and in {1, 3, 10} for S-2.2 (27), 115 configurations in all, with 5 replicas each instead of 10. Fig. 6 (the
+  convergence ratio of S-2.2 over alpha_a and alpha_av) comes out of the S-2.2 grid.
 - Fig. 7: S-2.2 with the weights of Fig. 4a, tau averaged over runs for communication-failure probability p in
   {0, 0.1, ..., 0.9} and heading noise delta in [0, 0.9] degrees (the paper: delta in steps of 0.1 and 50 runs;
   ours: delta in {0, 0.3, 0.6, 0.9} and 10 replicas). The paper reports tau rising smoothly for p <= 0.8, jumping
-  at p = 0.9, and little effect of the noise.
+  at p = 0.9, and no effect of the noise; that last claim is checked on its own on 50 paired runs at p = 0 (delta
+  0 and 0.9 degrees, replica r with the same initial state in both).
+- Not in the paper: the torus size, on which tau depends (the six configurations again on a 1000 bl torus, the
+  same initial states), and what sets rho (Fig. 4e's configuration without the ramp jitter, and also with a 1 bl
+  minimum separation).
 
-phi and rho are taken at the end of the run (the formation then moves rigidly with the VA, so they equal their
-values when the DF is first reached); tau is exact (checked every step) and equals the cap when the DF is not
-reached. The formation replicas are not batched (one run after another), so the full size is long (see
-docs/reproduce.md).
+Every number is reported with its replicas and 95 % confidence interval (:mod:`tflock.reproduce.stats`). phi and
+rho are taken at the end of the run (the formation then moves rigidly with the VA, so they equal their values when
+the DF is first reached, up to the last few degrees of alignment); tau is exact (checked every step) and equals the
+cap when the DF is not reached. The formation replicas are not batched (one run after another: about 4 s of one
+core each), so the full size takes hours: see docs/reproduce.md.
 """
 
 import math
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from tflock.reproduce.experiment import Experiment, Report, Results
+from tflock.reproduce.stats import Estimate, mean_ci, paired_difference_ci, proportion_ci, verdict
 
 STRATEGIES = ("S-1.1", "S-1.2", "S-1.3", "S-1.4", "S-2.1", "S-2.2", "S-2.3", "S-2.4")
 WEIGHTS = ("align", "cohesion", "va_align", "va_cohesion")
@@ -51,9 +56,24 @@ PAPER_FIG4 = {
     "f": ("rho", "max", "S-2.4", (2, 3, 6, 9), 13.88),
 }
 BEST = PAPER_FIG4["a"][3]  # the configuration of Figs. 5 and 7
-LEVELS = (1.0, 3.0, 10.0)  # our reduced grid of every weight (the paper: 1, 2, ..., 10)
+#: our reduced grid of every weight (the paper: 1, 2, ..., 10): the extremes for every strategy, and a middle level
+#: for S-2.2, whose alpha_a x alpha_av plane is Fig. 6 (a run costs ~4 s of one core: 3000 steps of ~1.3 ms)
+LEVELS, FIG6_LEVELS = (1.0, 10.0), (1.0, 3.0, 10.0)
 #: replicas at full size: the paper's configurations, each grid configuration, each (p, delta) of Fig. 7
 PAPER_REPLICAS, GRID_REPLICAS, FIG7_REPLICAS = 10, 5, 10
+#: parameters a point may set besides the strategy and weights, with their defaults (the sweep table's columns)
+POINT_KEYS = {"fail_prob": 0.0, "noise_deg": 0.0, "world": 200.0, "ramp_jitter": 1.0, "min_separation": 2.5}
+SUMMARY_COLUMNS = ["converged_fraction", "converged_lo", "converged_hi", "tau_mean", "tau_lo", "tau_hi", "tau_min",
+                   "tau_max", "tau_std", "phi_mean", "phi_lo", "phi_hi", "phi_min", "phi_max", "rho_mean", "rho_lo",
+                   "rho_hi", "rho_min", "rho_max"]
+#: the noise claim of Fig. 7: tau at p = 0 without and with the largest noise, over the paper's 50 runs, paired
+#: (replica r has seed r at both, so the same initial state)
+NOISE_LEVELS, NOISE_REPLICAS = (0.0, 0.9), 50
+#: the torus side is not in the paper: ours (200 bl) and one so large that no agent wraps before the DF
+WORLDS = (200.0, 1000.0)
+#: rho of Fig. 4e: the paper's ramp jitter gamma = T, none (every agent stops at the VA's depth), and none with a
+#: smaller minimum separation (values of params.ramp_jitter and params.min_separation)
+RHO_VARIANTS = ((1.0, 2.5), (0.0, 2.5), (0.0, 1.0))
 
 
 def _uses_cohesion(strategy: str) -> bool:
@@ -76,7 +96,7 @@ class Formation(Experiment):
 
     @staticmethod
     def steps(quick: bool) -> int:
-        return 1000 if quick else 3000  # also the cap of tau (the paper's 3000 tu)
+        return 1200 if quick else 3000  # the cap of tau (the paper's 3000 tu; quick: the six seed-0 runs reach the DF)
 
     def _set(self, quick: bool) -> dict[str, Any]:
         steps = self.steps(quick)
@@ -94,64 +114,98 @@ class Formation(Experiment):
         if quick:  # a tiny grid: S-2.2, alpha_a against a large alpha_av (Fig. 6's axis)
             grids = {"S-2.2": {"align": [1.0, 10.0], "cohesion": [1.0], "va_align": [10.0], "va_cohesion": [4.0]}}
         else:
-            grids = {s: {w: list(LEVELS) if w != "cohesion" or _uses_cohesion(s) else [1.0] for w in WEIGHTS}
-                     for s in STRATEGIES}
+            grids = {s: {w: list(FIG6_LEVELS if s == "S-2.2" else LEVELS) if w != "cohesion" or _uses_cohesion(s)
+                         else [1.0] for w in WEIGHTS} for s in STRATEGIES}
         for strategy, levels in grids.items():
             sweeps[f"formation-grid-{_slug(strategy)}"] = {
                 "model": "formation", "replicas": 1 if quick else GRID_REPLICAS, "seed": 0, "set": fixed,
                 "grid": {"params.strategy": [strategy], **{f"params.weights.{w}": v for w, v in levels.items()}},
             }
+        best = {"params.strategy": ["S-2.2"], **{k: [v] for k, v in _weights(BEST).items()}}
         sweeps["formation-fig7"] = {
             "model": "formation", "replicas": 1 if quick else FIG7_REPLICAS, "seed": 0, "set": fixed,
-            "grid": {"params.strategy": ["S-2.2"], **{k: [v] for k, v in _weights(BEST).items()},
+            "grid": {**best,
                      "params.fail_prob": [0.0, 0.9] if quick else [round(0.1 * k, 1) for k in range(10)],
                      "params.noise_deg": [0.0, 0.9] if quick else [0.0, 0.3, 0.6, 0.9]},
+        }
+        sweeps["formation-noise"] = {
+            "model": "formation", "replicas": 2 if quick else NOISE_REPLICAS, "seed": 0, "set": fixed,
+            "grid": {**best, "params.fail_prob": [0.0], "params.noise_deg": list(NOISE_LEVELS)},
+        }
+        sweeps["formation-torus"] = {  # the Fig. 4 configurations on a torus where nobody wraps
+            "model": "formation", "replicas": 1 if quick else PAPER_REPLICAS, "seed": 0,
+            "set": {**fixed, "params.world": WORLDS[1]},
+            "points": sweeps["formation-fig4-paper"]["points"][:1 if quick else None],
+        }
+        sweeps["formation-rho"] = {  # Fig. 4e: what sets rho
+            "model": "formation", "replicas": 1 if quick else PAPER_REPLICAS, "seed": 0,
+            "set": {k: v for k, v in fixed.items() if k != "params.min_separation"},
+            "points": [{"params.strategy": PAPER_FIG4["e"][2], **_weights(PAPER_FIG4["e"][3]),
+                        "params.ramp_jitter": jitter, "params.min_separation": separation}
+                       for jitter, separation in RHO_VARIANTS[1:]],
         }
         return sweeps
 
     def report(self, results: Results, quick: bool) -> Report:
         cap = self.steps(quick)
-        paper = self._summary(results.sweeps["formation-fig4-paper"], cap)
+        sweeps = results.sweeps
+        paper = self._summary(sweeps["formation-fig4-paper"], cap)
         paper["figure"] = list(PAPER_FIG4)  # the points are in PAPER_FIG4's order
         paper["paper_quantity"] = [q for q, *_ in PAPER_FIG4.values()]
         paper["paper_value"] = [v for *_, v in PAPER_FIG4.values()]
-        grid = pd.concat([self._summary(t, cap) for name, t in results.sweeps.items()
-                          if name.startswith("formation-grid-")], ignore_index=True)
-        fig7 = self._summary(results.sweeps["formation-fig7"], cap)
-        table = pd.concat([paper.assign(sweep="fig4-paper"), grid.assign(sweep="grid"),
-                           fig7.assign(sweep="fig7")], ignore_index=True)
-        table = table[["sweep", "figure", "strategy", *WEIGHTS, "fail_prob", "noise_deg", "replicas",
-                       "converged_fraction", "tau_mean", "tau_std", "phi_mean", "rho_mean", "paper_quantity",
-                       "paper_value"]]
+        grid = pd.concat([self._summary(t, cap) for name, t in sweeps.items() if name.startswith("formation-grid-")],
+                         ignore_index=True)
+        fig7 = self._summary(sweeps["formation-fig7"], cap)
+        noise = self._summary(sweeps["formation-noise"], cap)
+        torus = self._summary(sweeps["formation-torus"], cap)
+        torus["figure"], torus["world"] = list(PAPER_FIG4)[:len(torus)], WORLDS[1]  # world: set, not swept
+        rho = self._summary(sweeps["formation-rho"], cap)
+        rho["figure"] = "e"
+        table = pd.concat([paper.assign(sweep="fig4-paper"), grid.assign(sweep="grid"), fig7.assign(sweep="fig7"),
+                           noise.assign(sweep="noise"), torus.assign(sweep="torus"), rho.assign(sweep="rho")],
+                          ignore_index=True)
+        table = table[["sweep", "figure", "strategy", *WEIGHTS, *POINT_KEYS, "replicas", *SUMMARY_COLUMNS,
+                       "paper_quantity", "paper_value"]]
         figures = {"fig4-quantifiers": self._fig4(paper, grid), "fig6-convergence-s2-2": self._fig6(grid),
                    "fig7-tau-failure-noise": self._fig7(fig7)}
-        return Report(figures, table, self._comparison(paper, grid, fig7, cap, quick))
+        comparison = self._comparison(paper, grid, fig7, cap, quick, sweeps=sweeps, torus=torus, rho=rho)
+        return Report(figures, table, comparison)
 
     # ------------------------------------------------------------------------------------------------------
     # Numbers.
 
     @staticmethod
     def _summary(sweep: pd.DataFrame, cap: int) -> pd.DataFrame:
-        """One row per configuration: the fraction of replicas that reach the DF before the cap, tau (mean and
-        std over all replicas, the cap where not reached) and phi, rho (means over the replicas that reach it)."""
-        keys = ["params.strategy", *[f"params.weights.{w}" for w in WEIGHTS], "params.fail_prob",
-                "params.noise_deg"]
+        """One row per configuration, in the sweep's order: the fraction of replicas that reach the DF before the
+        cap (Wilson 95 % interval), tau over all replicas (the cap where not reached) and phi, rho over those that
+        reach it, each as mean, 95 % t interval, min and max."""
         frame = sweep.copy()
-        for key in keys[-2:]:
-            if key not in frame:
-                frame[key] = 0.0
+        for key, default in POINT_KEYS.items():
+            if f"params.{key}" not in frame:
+                frame[f"params.{key}"] = default
+        keys = ["params.strategy", *[f"params.weights.{w}" for w in WEIGHTS], *[f"params.{k}" for k in POINT_KEYS]]
         rows = []
         for values, group in frame.groupby(keys, sort=False):
-            done = group["final_tau"] < cap
-            rows.append({
-                "strategy": values[0], **dict(zip(WEIGHTS, values[1:5], strict=True)),
-                "fail_prob": values[5], "noise_deg": values[6], "replicas": len(group),
-                "converged_fraction": done.mean(),
-                "tau_mean": group["final_tau"].mean(), "tau_std": group["final_tau"].std(ddof=1),
-                "phi_mean": group.loc[done, "final_phi"].mean() if done.any() else math.nan,
-                "rho_mean": group.loc[done, "final_rho"].mean() if done.any() else math.nan,
-            })
+            done = (group["final_tau"] < cap).to_numpy()
+            reached = proportion_ci(int(done.sum()), len(group))
+            row = {"strategy": values[0], **dict(zip(WEIGHTS, values[1:5], strict=True)),
+                   **dict(zip(POINT_KEYS, values[5:], strict=True)), "replicas": len(group),
+                   "converged_fraction": reached.value, "converged_lo": reached.lo, "converged_hi": reached.hi,
+                   "tau_std": group["final_tau"].std(ddof=1)}
+            for q, values_q in (("tau", group["final_tau"]), ("phi", group.loc[done, "final_phi"]),
+                                ("rho", group.loc[done, "final_rho"])):
+                estimate = mean_ci(values_q.to_numpy())
+                row.update({f"{q}_mean": estimate.value, f"{q}_lo": estimate.lo, f"{q}_hi": estimate.hi,
+                            f"{q}_min": values_q.min() if len(values_q) else math.nan,
+                            f"{q}_max": values_q.max() if len(values_q) else math.nan})
+            rows.append(row)
         return pd.DataFrame(rows)
+
+    @staticmethod
+    def _estimate(row: pd.Series, q: str) -> Estimate:
+        """A summary row's mean of `q` with its interval (n: the replicas it is over)."""
+        n = int(row["replicas"]) if q == "tau" else int(round(row["converged_fraction"] * row["replicas"]))
+        return Estimate(row[f"{q}_mean"], row[f"{q}_lo"], row[f"{q}_hi"], n)
 
     @staticmethod
     def _extremes(grid: pd.DataFrame) -> dict[tuple[str, str], pd.Series]:
@@ -182,8 +236,9 @@ class Formation(Experiment):
                 ax.vlines(x[strategy], group[f"{q}_mean"].min(), group[f"{q}_mean"].max(), color="C0", lw=6,
                           alpha=0.4, label="our grid: min-max over converged configs" if k == 0 else None)
             mine = paper[paper["paper_quantity"] == q]
-            ax.plot([x[s] for s in mine["strategy"]], mine[f"{q}_mean"], "D", color="C1",
-                    label="ours, the paper's configuration")
+            ax.errorbar([x[s] for s in mine["strategy"]], mine[f"{q}_mean"],
+                        yerr=[mine[f"{q}_mean"] - mine[f"{q}_lo"], mine[f"{q}_hi"] - mine[f"{q}_mean"]], fmt="D",
+                        color="C1", capsize=3, label="ours, the paper's configuration (95 % CI)")
             ax.plot([x[s] for s in mine["strategy"]], mine["paper_value"], "*", ms=12, color="C3",
                     label="paper, Fig. 4")
             for _, row in mine.iterrows():
@@ -226,10 +281,13 @@ class Formation(Experiment):
         left.set_xlabel("communication failure p")
         left.set_ylabel("noise delta (degrees)")
         figure.colorbar(image, ax=left, label="mean tau (tu)")
-        for delta, row in tau.iterrows():
-            right.plot(row.index, row.to_numpy(), marker="o", ms=3, label=f"delta = {delta:g} deg")
+        for delta, rows in fig7.groupby("noise_deg"):
+            rows = rows.sort_values("fail_prob")
+            right.errorbar(rows["fail_prob"], rows["tau_mean"], capsize=2, marker="o", ms=3,
+                           yerr=[rows["tau_mean"] - rows["tau_lo"], rows["tau_hi"] - rows["tau_mean"]],
+                           label=f"delta = {delta:g} deg")
         right.set_xlabel("communication failure p")
-        right.set_ylabel("mean tau (tu; the cap if no DF)")
+        right.set_ylabel("mean tau, 95 % CI (tu; the cap if no DF)")
         right.legend()
         figure.suptitle("Fig. 7: tau over p and delta, S-2.2 with alpha_a = 8, alpha_av = 9, alpha_cv = 4")
         figure.tight_layout()
@@ -238,127 +296,211 @@ class Formation(Experiment):
     # ------------------------------------------------------------------------------------------------------
     # Comparison.
 
-    def _comparison(self, paper: pd.DataFrame, grid: pd.DataFrame, fig7: pd.DataFrame, cap: int,
-                    quick: bool) -> str:
+    @staticmethod
+    def _runs_of(sweep: pd.DataFrame, row: pd.Series) -> pd.DataFrame:
+        """The runs of `sweep` with the strategy and weights of summary `row`, by seed."""
+        same = sweep["params.strategy"] == row["strategy"]
+        for w in WEIGHTS:
+            same &= sweep[f"params.weights.{w}"] == row[w]
+        return sweep[same].sort_values("seed")
+
+    def _comparison(self, paper: pd.DataFrame, grid: pd.DataFrame, fig7: pd.DataFrame, cap: int, quick: bool, *,
+                    sweeps: dict[str, pd.DataFrame], torus: pd.DataFrame, rho: pd.DataFrame) -> str:
         set_ = self._set(quick)
         vair, va, vout = set_["params.vair"], set_["params.va_speed"], set_["params.out_speed"]
-        ramp = vair / (vout - va)  # T of the model's speed ramps (FormationParams.ramp_time)
+        ramp = 2 * vair / (vout - va)  # T of the model's speed ramps (FormationParams.ramp_time)
         radius = vout / math.radians(1.0)  # turning radius at |vout| and the paper's 1 degree per tu
+        digits = {"tau": 0, "phi": 2, "rho": 1}
+        checks: list[tuple[str, bool]] = []
 
-        lines = ["| Fig. 4 | strategy | weights (a, c, av, cv) | paper | ours: reach the DF | tau | phi | rho |",
+        # Fig. 4: each configuration's quantifier against the paper's number
+        lines = ["| Fig. 4 | strategy | weights (a, c, av, cv) | paper | reach the DF | tau (tu) | phi | rho (bl) |",
                  "|---|---|---|---|---|---|---|---|"]
         for _, r in paper.iterrows():
+            q = r["paper_quantity"]
+            mine = self._estimate(r, q)
             w = ", ".join(f"{r[k]:g}" for k in WEIGHTS)
-            lines.append(f"| ({r['figure']}) | {r['strategy']} | {w} | {r['paper_quantity']} = {r['paper_value']:g} | "
-                         f"{100 * r['converged_fraction']:.0f} % of {r['replicas']} | {r['tau_mean']:.0f} | "
-                         f"{r['phi_mean']:.2f} | {r['rho_mean']:.1f} |")
+            over = "runs that reach the DF" if q != "tau" else "runs"
+            checks.append((f"({r['figure']}) {PAPER_FIG4[r['figure']][1]} {q} = {r['paper_value']:g} ({r['strategy']},"
+                           f" weights {w}): ours {mine.text(digits[q], runs=over)}, single runs "
+                           f"{r[f'{q}_min']:.{digits[q]}f} to {r[f'{q}_max']:.{digits[q]}f}",
+                           mine.holds(r["paper_value"])))
+            reached = proportion_ci(int(round(r["converged_fraction"] * r["replicas"])), int(r["replicas"]))
+            lines.append(f"| ({r['figure']}) | {r['strategy']} | {w} | {q} = {r['paper_value']:g} | "
+                         f"{reached.short(2)} of {r['replicas']} | "
+                         + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
+        converged, total = int(round((paper["converged_fraction"] * paper["replicas"]).sum())), paper["replicas"].sum()
+        checks.append((f"the six configurations reach the DF in every run (the paper selected them so): "
+                       f"{converged} of {total} runs do", bool(converged == total)))
+        bounds = {"tau": (871.0, 1971.0), "phi": (0.09, 0.36), "rho": (5.20, 13.88)}
+        for q, (low, high) in bounds.items():
+            meet = [self._estimate(r, q).overlaps(low, high) for _, r in paper.iterrows()]
+            checks.append((f"{q} of every one of the six lies within the paper's extremes over all configurations, "
+                           f"{low:g} to {high:g}: the 95 % intervals of {sum(meet)} of 6 meet that range "
+                           f"(means {paper[f'{q}_mean'].min():.{digits[q]}f} to "
+                           f"{paper[f'{q}_mean'].max():.{digits[q]}f})",
+                           all(meet)))
+
+        # Fig. 4's selection on our reduced grid
         extremes = self._extremes(grid)
-        ext = ["| quantifier | paper (Fig. 4) | ours on the reduced grid | strategy, weights (a, c, av, cv) |",
-               "|---|---|---|---|"]
+        ext = ["| quantifier | paper (Fig. 4) | ours on the reduced grid, that configuration's mean [95 % CI] | "
+               "strategy, weights (a, c, av, cv) |", "|---|---|---|---|"]
         for (q, which, strategy, _, value) in PAPER_FIG4.values():
             row = extremes.get((q, which))
             if row is None:
-                ext.append(f"| {which} {q} | {value:g} ({strategy}) | no configuration converged in all replicas | |")
+                ext.append(f"| {which} {q} | {value:g} ({strategy}) | no configuration reached the DF in all runs | |")
                 continue
             w = ", ".join(f"{row[k]:g}" for k in WEIGHTS)
-            digits = {"tau": 0, "phi": 2, "rho": 1}[q]
-            ext.append(f"| {which} {q} | {value:g} ({strategy}) | {row[f'{q}_mean']:.{digits}f} | {row['strategy']}, "
-                       f"{w} |")
+            ext.append(f"| {which} {q} | {value:g} ({strategy}) | {self._estimate(row, q).short(digits[q])} | "
+                       f"{row['strategy']}, {w} |")
         n_ok = int((grid["converged_fraction"] == 1).sum())
 
+        # Fig. 6: S-2.2's convergence above and below the diagonal
         s22 = grid[grid["strategy"] == "S-2.2"]
-        above = s22[s22["va_align"] >= s22["align"]]["converged_fraction"].mean()
-        below = s22[s22["va_align"] < s22["align"]]["converged_fraction"].mean()
+        runs = (s22["converged_fraction"] * s22["replicas"]).round()
+        upper = s22["va_align"] >= s22["align"]
+        above = proportion_ci(int(runs[upper].sum()), int(s22.loc[upper, "replicas"].sum()))
+        below = proportion_ci(int(runs[~upper].sum()), int(s22.loc[~upper, "replicas"].sum()))
+        checks.append((f"Fig. 6: S-2.2 reaches the DF more often with alpha_av >= alpha_a: {above.text(2)} of the "
+                       f"runs there against {below.text(2)} below the diagonal", bool(above.lo > below.hi)))
 
-        def pct(x: float) -> str:
-            return "no configuration" if math.isnan(x) else f"{100 * x:.0f} %"
+        # Fig. 7: tau over p (the runs of all deltas pooled) and over delta
+        raw7 = sweeps["formation-fig7"]
+        by_p = {p: mean_ci(g["final_tau"].to_numpy()) for p, g in raw7.groupby("params.fail_prob")}
+        p_values = sorted(by_p)
+        low_p = [p for p in p_values if p <= 0.8]
+        rises = len(low_p) > 1 and by_p[low_p[-1]].lo > by_p[low_p[0]].hi
+        jump = 0.9 in by_p and by_p[0.9].lo >= 0.9 * cap and all(by_p[p].hi < 0.9 * cap for p in low_p)
+        checks.append((f"Fig. 7: tau rises with p up to 0.8 (p = {low_p[0]:g}: {by_p[low_p[0]].text(0, 'tu')}"
+                       + (f"; p = {low_p[-1]:g}: {by_p[low_p[-1]].text(0, 'tu')}" if len(low_p) > 1 else
+                          "; no other p at most 0.8 was run") + "; the runs of every delta pooled)", bool(rises)))
+        if 0.9 in by_p:
+            checks.append((f"Fig. 7: tau jumps near the cap only at p = 0.9 ({by_p[0.9].text(0, 'tu')}; the cap "
+                           f"{cap} where the DF is not reached)", bool(jump)))
+        table7 = fig7.pivot_table(index="fail_prob", columns="noise_deg", values="tau_mean")
+        deltas = list(table7.columns)
+        lines7 = ["| p | " + " | ".join(f"delta = {d:g} deg" for d in deltas) + " | all deltas |",
+                  "|---|" + "---|" * (len(deltas) + 1)]
+        for p in table7.index:
+            cells = []
+            for d in deltas:
+                row = fig7[(fig7["fail_prob"] == p) & (fig7["noise_deg"] == d)].iloc[0]
+                cells.append(self._estimate(row, "tau").short(0))
+            lines7.append(f"| {p:g} | " + " | ".join(cells) + f" | {by_p[p].short(0)} |")
 
-        tau = fig7.pivot_table(index="noise_deg", columns="fail_prob", values="tau_mean")
-        by_p = tau.mean(axis=0)
-        p_values = by_p.index.to_numpy()
-        noise_effect = float((tau.max(axis=0) - tau.min(axis=0)).loc[by_p < 0.9 * cap].mean()) \
-            if (by_p < 0.9 * cap).any() else math.nan
-        capped = [p for p in p_values if by_p[p] >= 0.9 * cap]
-        first_capped = min(capped) if capped else None
-        rising = bool(np.all(np.diff(by_p.to_numpy()) > -0.05 * cap))
+        # the noise claim: paired runs at p = 0
+        raw = sweeps["formation-noise"]
+        levels = sorted(raw["params.noise_deg"].unique())
+        tau_at = {d: raw[raw["params.noise_deg"] == d].sort_values("seed")["final_tau"].to_numpy() for d in levels}
+        noise_means = {d: mean_ci(v) for d, v in tau_at.items()}
+        effect = paired_difference_ci(tau_at[levels[0]], tau_at[levels[-1]])
+        checks.append((f"'epsilon does not affect the convergence' (Fig. 7): at p = 0, tau is "
+                       f"{noise_means[levels[0]].text(0, 'tu')} without noise and "
+                       f"{noise_means[levels[-1]].text(0, 'tu')} at delta = {levels[-1]:g} degrees; paired by "
+                       f"initial state, the noise changes it by {effect.text(0, 'tu', runs='pairs')}",
+                       effect.holds(0.0)))
 
-        phis = paper["phi_mean"].dropna()
-        rhos = paper["rho_mean"].dropna()
-        grid_ok = grid[grid["converged_fraction"] == 1]
-        phi_ok = bool(phis.between(0.0, 0.46).all()) if len(phis) else False
-        rho_ok = bool(rhos.between(5.2 * 0.75, 13.88 * 1.25).all()) if len(rhos) else False
-        checks = [
-            ("the paper's six Fig. 4 configurations reach the DF in every run",
-             bool((paper["converged_fraction"] == 1).all()),
-             f"{100 * paper['converged_fraction'].mean():.0f} % of their runs do"),
-            ("tau of those configurations lies within 25 % of the paper's range 871-1971 tu (its extremes over all "
-             "configurations)",
-             bool(paper["tau_mean"].between(871 * 0.75, 1971 * 1.25).all()),
-             f"ours {paper['tau_mean'].min():.0f}-{paper['tau_mean'].max():.0f} tu"),
-            ("phi lies within 0.1 of the paper's range 0.09-0.36",
-             phi_ok,
-             f"ours {phis.min():.2f}-{phis.max():.2f}" if len(phis) else "no converged run"),
-            ("rho lies within 25 % of the paper's range 5.20-13.88 bl",
-             rho_ok,
-             f"ours {rhos.min():.1f}-{rhos.max():.1f} bl" if len(rhos) else "no converged run"),
-            ("Fig. 7: tau grows with p and jumps near the cap (>= 90 % of it) only at p = 0.9",
-             rising and first_capped is not None and first_capped >= 0.9,
-             f"mean tau over delta: {', '.join(f'p = {p:g}: {by_p[p]:.0f}' for p in p_values)}"),
-            ("Fig. 7: the noise delta hardly changes tau",
-             bool(noise_effect < 0.25 * (by_p.max() - by_p.min() + 1e-9)) if not math.isnan(noise_effect) else False,
-             f"spread of tau over delta at fixed p (where the DF is reached): {noise_effect:.0f} tu on average"),
-        ]
-        verdicts = [f"- {claim}: **{'agrees' if ok else 'does NOT agree'}** ({detail})" for claim, ok, detail in checks]
-        levels = ", ".join(f"{v:g}" for v in LEVELS)
-        size = ("quick: 1 replica, runs and tau capped at 1000 tu, a 2-configuration grid" if quick else
-                f"the paper's configurations x {paper['replicas'].max()} replicas; our grid: weights in {{{levels}}}, "
-                f"{len(grid)} of the paper's ~44,000 configurations, {grid['replicas'].max()} replicas each; Fig. 7: "
-                f"{fig7['replicas'].max()} replicas instead of 50")
+        # the torus: the Fig. 4 configurations at our 200 bl and at 1000 bl, paired by initial state
+        raw_small, raw_large = sweeps["formation-fig4-paper"], sweeps["formation-torus"]
+        lines_t = [f"| Fig. 4 | strategy | tau, torus {WORLDS[0]:g} bl | tau, torus {WORLDS[1]:g} bl | paired "
+                   "difference (large - small) |", "|---|---|---|---|---|"]
+        torus_moves = []
+        for k, (_, r) in enumerate(torus.iterrows()):
+            small = paper.iloc[k]
+            small_runs, large_runs = self._runs_of(raw_small, r), self._runs_of(raw_large, r)
+            both = small_runs.merge(large_runs, on="seed", suffixes=("_small", "_large"))
+            diff = paired_difference_ci(both["final_tau_small"], both["final_tau_large"])
+            torus_moves.append(diff.excludes(0.0))
+            lines_t.append(f"| ({r['figure']}) | {r['strategy']} | {self._estimate(small, 'tau').short(0)} | "
+                           f"{self._estimate(r, 'tau').short(0)} | {diff.short(0)} |")
+
+        # rho: what sets it (Fig. 4e)
+        e = paper[paper["figure"] == "e"].iloc[0]
+        variants = [("the paper's gamma = T, minimum separation 2.5 bl", e)]
+        for _, r in rho.iterrows():
+            gamma = f"{r['ramp_jitter']:g} T" if r["ramp_jitter"] else "0"
+            variants.append((f"gamma = {gamma}, minimum separation {r['min_separation']:g} bl", r))
+        lines_r = ["| Fig. 4e (S-1.2; 3, 1, 10, 10) | reach the DF | tau (tu) | phi | rho (bl) |",
+                   "|---|---|---|---|---|"]
+        for label, r in variants:
+            lines_r.append(f"| {label} | {r['converged_fraction']:.0%} of {r['replicas']} | "
+                           + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
+        rho_all = mean_ci(paper["rho_mean"].to_numpy())
+
+        levels_text = ", ".join(f"{v:g}" for v in LEVELS) + "}, S-2.2 {" + ", ".join(f"{v:g}" for v in FIG6_LEVELS)
+        size = (f"quick: 1 replica (2 for the noise pairs), runs and tau capped at {cap} tu, a 2-configuration grid: "
+                "no interval, so no agreement, can be claimed" if quick else
+                f"the paper's six configurations x {paper['replicas'].max()} runs as the paper; our grid: weights in "
+                f"{{{levels_text}}}, {len(grid)} of the paper's ~44,000 configurations, {grid['replicas'].max()} runs "
+                f"each; Fig. 7: {fig7['replicas'].max()} runs per (p, delta) instead of 50, and the noise claim on "
+                f"{len(tau_at[levels[0]])} pairs")
+        agree = sum(ok for _, ok in checks)
         return "\n".join([
-            "The paper (section 4) reports, over ~44,000 weight configurations x 10 runs, the configurations that "
-            "reach the desired formation (DF) in all runs with the extreme values of tau, phi and rho (Fig. 4), and "
-            "for S-2.2 with alpha_a = 8, alpha_av = 9, alpha_cv = 4 a tau that rises smoothly with the "
-            "communication-failure probability p up to 0.8, jumps at p = 0.9, and barely depends on the noise "
-            f"(Fig. 7). Ours ({size}):",
+            "The paper (section 4) runs every weight configuration 10 times and reports, over ~44,000 of them, the "
+            "configurations that reach the desired formation (DF) in all runs with the extreme values of tau, phi "
+            "and rho (Fig. 4); for S-2.2 that convergence is more likely when alpha_av >= alpha_a (Fig. 6); and for "
+            "S-2.2 with alpha_a = 8, alpha_av = 9, alpha_cv = 4, tau rises smoothly with the communication-failure "
+            "probability p up to 0.8, jumps at p = 0.9, and 'epsilon does not affect the convergence' (Fig. 7). "
+            f"Ours ({size}). Every number of ours is a mean over runs with its 95 % confidence interval, written "
+            "mean [low, high] in the tables (Student's t for means, Wilson's interval for fractions); tau counts "
+            "the cap for a run that does not reach the DF; phi and rho are over the runs that reach it, at the end "
+            "of the run. A claim **agrees** only where the paper's number lies within our interval.",
             "",
-            *verdicts,
+            f"**{agree} of {len(checks)} checks agree.**",
             "",
-            "The paper's Fig. 4 configurations, run as published (tau: mean over all replicas, the cap where the DF "
-            "is not reached; phi, rho: means over the replicas that reach it):",
+            *[f"- {claim}: **{verdict(ok)}**" for claim, ok in checks],
+            "",
+            "### Fig. 4: the paper's six configurations, run as published",
             "",
             *lines,
             "",
             f"Fig. 4's selection on our reduced grid ({n_ok} of {len(grid)} configurations reach the DF in every "
-            "replica):",
+            "run; a minimum or maximum over many configurations of few runs each leans toward the extreme, so the "
+            "selected configuration's interval is its own, not that of the selection):",
             "",
             *ext,
             "",
-            f"**phi and rho {'agree' if phi_ok and rho_ok else 'disagree'} with the paper.** Where the agents "
-            f"settle in the VAIR: phi {phis.min():.2f}-{phis.max():.2f} (paper 0.09-0.36) and rho "
-            f"{rhos.min():.1f}-{rhos.max():.1f} bl (paper 5.20-13.88) for the paper's configurations; over the "
-            f"whole grid phi {grid_ok['phi_mean'].min():.2f}-{grid_ok['phi_mean'].max():.2f} and rho "
-            f"{grid_ok['rho_mean'].min():.1f}-{grid_ok['rho_mean'].max():.1f} bl."
-            + ("" if phi_ok else
-               " The speed ramp of eq. (1) lasts T = VAIR / (|vout| - |va|) = "
-               f"{ramp:.1f} tu (+- T), so an entering agent gains a depth uniform in (0, {vair:g}) bl on the VA, "
-               "the paper's 'homogeneous distribution of agents inside the VAIR'; that is what puts rho in range. "
-               "phi stays high because every agent starts behind the VA (the paper's initial rectangle) and, "
-               f"once inside, moves at |va| = {va:g} like the VA: it keeps its place behind it and the agents end "
-               "on one side. A phi of 0.09-0.36 needs agents all around the VA, which the text does not say how "
-               "its model reaches (agents inside the VAIR would have to overtake the VA)."),
+            "### rho: what sets it",
             "",
-            f"Fig. 6: S-2.2 reaches the DF in {pct(above)} of the runs with alpha_av >= alpha_a and {pct(below)} "
-            "with alpha_av < alpha_a (the paper: more likely when alpha_av >= alpha_a, with regions that never "
-            "converge).",
+            "Nothing inside the VAIR pulls an agent toward the VA: Table 1 leaves only Fav and Fa there (Fav alone "
+            "for S-x.1), and Fs when a neighbour is too close. An agent therefore keeps the place relative to the VA "
+            "where its speed ramp ends (eq. 1), and rho follows from the ramps and from the separation. The ramp "
+            f"lasts T + rnd, T = 2 VAIR / (|vout| - |va|) = {ramp:g} tu (the time from the VAIR boundary to the VA "
+            "while slowing down), rnd ~ U(-gamma, gamma), and with the paper's gamma = T an agent entering from "
+            f"behind stops anywhere on the VAIR's diameter, up to {vair:g} bl behind or in front of the VA: the "
+            "'homogeneous distribution of agents inside the VAIR' that the paper asks of gamma = T, for which the "
+            "paper itself expects 'rho around the half of VAIR size'. That is what we get for every configuration: "
+            f"the six configurations' mean rho are {paper['rho_mean'].min():.1f} to {paper['rho_mean'].max():.1f} bl "
+            f"(their average {rho_all.value:.1f} bl). The paper's smallest rho, 5.20 bl (Fig. 4e), packs 12 agents "
+            "within about 8 bl of the VA (a uniform disc of radius R has mean distance 2R / 3). Fig. 4e's "
+            "configuration without the ramp jitter (every agent then stops at the VA's depth), and also with a 1 bl "
+            "minimum separation instead of the paper's 2.5 bl (neither of which the paper states):",
             "",
-            "Fig. 7 has no numbers in the text, only the shape compared above; "
-            + (f"our mean tau is within 10 % of the cap from p = {first_capped:g} on, earlier than the paper's jump. "
-               if first_capped is not None and first_capped < 0.9 else "") +
-            "The failure p silences every force of the agent for the step (as the paper says "
-            "for S-2.2 outside the VAIR: 'they will only try to go towards VA 10 % of the cases' at p = 0.9), so "
-            f"with turns of at most 1 degree per tu an agent at |vout| = {vout:g} circles with radius "
-            f"{radius:.0f} / (1 - p) bl on average ({radius / 0.4:.0f} bl, the torus side being "
-            f"{set_['params.world']:g}, at p = 0.6) and then closes on the VA at only |vout| - |va| = "
-            f"{vout - va:g} bl/tu: the agents that start heading away arrive late, and the DF waits for the last "
-            "one. What keeps the paper's tau moderate up to p = 0.8 the text does not say.",
+            *lines_r,
+            "",
+            "The paper's 5.20 lies within our interval for "
+            + (", ".join(label for label, r in variants if self._estimate(r, "rho").holds(5.20)) or "none of these")
+            + ": the spread of the ramps sets rho, and the minimum separation how closely the agents can pack.",
+            "",
+            "### The torus",
+            "",
+            "The paper's arena is a torus of unstated size; ours is 200 bl (more than twice the initial rectangle's "
+            "reach from the VA). Agents that start heading away from the VA turn back at 1 degree per tu, on circles "
+            f"of {radius:.0f} bl radius at |vout|, and on a small torus some meet the VA again across the edge: tau "
+            f"depends on the size. The six configurations on a {WORLDS[1]:g} bl torus, where nobody wraps before "
+            f"the DF (the same initial states, relative to the VA; {sum(torus_moves)} of {len(torus_moves)} paired "
+            "differences exclude zero):",
+            "",
+            *lines_t,
+            "",
+            "### Fig. 7: tau over p and delta",
+            "",
+            *lines7,
+            "",
+            "Fig. 7 has no numbers in the text, only the shape checked above. The failure p silences every force "
+            "of the agent for the step (as the paper says for S-2.2 outside the VAIR: 'they will only try to go "
+            "towards VA 10 % of the cases' at p = 0.9), so with turns of at most 1 degree per tu an agent at "
+            f"|vout| = {vout:g} circles with radius {radius:.0f} / (1 - p) bl on average and then closes on the VA "
+            f"at only |vout| - |va| = {vout - va:g} bl/tu: the agents that start heading away arrive late, and the "
+            "DF waits for the last one.",
         ])

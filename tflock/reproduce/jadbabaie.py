@@ -27,6 +27,7 @@ import pandas as pd
 from tflock.config import config_to_dict, load_config, tomllib
 from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
+from tflock.reproduce.stats import Estimate, mean_ci, share_text
 
 N = 50
 BOX = math.sqrt(N)  # density 1
@@ -231,7 +232,9 @@ def summarise(replicas: pd.DataFrame) -> pd.DataFrame:
             if group["connected_late"].any() else np.nan,
             "median_e_theta": group["final_e_theta"].median(), "max_e_theta": group["final_e_theta"].max(),
             "median_leader_error": group["final_leader_error"].median() if leader else np.nan,
-            "clusters": group["final_clusters"].mean(), "largest_cluster": group["final_largest_cluster"].mean(),
+            "clusters": group["final_clusters"].mean(), "clusters_lo": mean_ci(group["final_clusters"]).lo,
+            "clusters_hi": mean_ci(group["final_clusters"]).hi,
+            "largest_cluster": group["final_largest_cluster"].mean(),
             "median_gap_to_initial_mean": float(np.median(np.abs(wrap_pi(
                 agree["final_heading"] - agree["initial_mean"])))) if len(agree) else np.nan,
             "max_gap_to_initial_mean": float(np.abs(wrap_pi(agree["final_heading"] - agree["initial_mean"])).max())
@@ -242,20 +245,18 @@ def summarise(replicas: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _fraction(value: float) -> str:
-    return "-" if not np.isfinite(value) else f"{value:.2f}"
-
-
 def _rows(table: pd.DataFrame) -> list[str]:
     lines = ["| leader | rule | boundary | r | k | agreed | followed | graph connected all 2nd half | "
-             "agreed if so | split for good | median e_theta | median leader_error | final clusters |",
+             "agreed if so | split for good | median e_theta (max) | median leader_error | final clusters |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in table.itertuples():
+        n, connected = row.replicas, row.connected_late * row.replicas
+        clusters = Estimate(row.clusters, row.clusters_lo, row.clusters_hi, n)
         lines.append(f"| {'yes' if row.leader else 'no'} | {row.rule} | {row.boundary} | {row.radius:g} | "
-                     f"{row.k_expected:.1f} | {_fraction(row.agreed)} | {_fraction(row.followed)} | "
-                     f"{_fraction(row.connected_late)} | {_fraction(row.agreed_if_connected_late)} | "
-                     f"{_fraction(row.split)} | {row.median_e_theta:.2g} | "
-                     f"{'-' if not row.leader else f'{row.median_leader_error:.2g}'} | {row.clusters:.1f} |")
+                     f"{row.k_expected:.1f} | {share_text(row.agreed, n)} | {share_text(row.followed, n)} | "
+                     f"{share_text(row.connected_late, n)} | {share_text(row.agreed_if_connected_late, connected)} | "
+                     f"{share_text(row.split, n)} | {row.median_e_theta:.2g} ({row.max_e_theta:.2g}) | "
+                     f"{'-' if not row.leader else f'{row.median_leader_error:.2g}'} | {clusters.short(1)} |")
     return lines
 
 
@@ -286,15 +287,22 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
              for rule in ("average", "laplacian")}
     pairs = table[~table["leader"]].pivot_table(index=["boundary", "radius"], columns="rule",
                                                 values=["agreed", "clusters"]).dropna()
+    def share(row: pd.Series, column: str) -> str:
+        return share_text(row[column], row["replicas"])
+
     checks = {
-        "well-connected periodic swarms agree (Theorems 1-2, both rules)":
+        f"well-connected periodic swarms agree (Theorems 1-2, both rules; r = {r_max:g}, agreed: "
+        f"{', '.join(rule + ' ' + share(b, 'agreed') for rule, b in best.items())})":
             all(b["agreed"] == 1 for b in best.values()),
-        "every replica whose graph stayed connected agreed (Theorem 1)":
+        f"every replica whose graph stayed connected agreed (Theorem 1; {int(connected['agreed'].sum())} of "
+        f"{len(connected)})":
             len(connected) > 0 and bool(connected["agreed"].all()),
-        "with a leader they follow theta0 (Theorem 4)": lead["followed"] == 1 and lead["max_gap_to_theta0"] < TOL,
+        f"with a leader they follow theta0 (Theorem 4; r = {r_max:g}, followed: {share(lead, 'followed')})":
+            lead["followed"] == 1 and lead["max_gap_to_theta0"] < TOL,
         "rule laplacian: theta_ss = mean theta(0), whatever the graphs": laplacian_gap < TOL,
-        "isolated groups (open plane, small r) do not agree": lone_open["agreed"] <= 0.25
-            and lone_open["split"] >= 0.5,
+        f"isolated groups (open plane, r = {r_min:g}) do not agree (agreed {share(lone_open, 'agreed')}, split "
+        f"for good {share(lone_open, 'split')}; our bar: at most a quarter agree, at least half split)":
+            lone_open["agreed"] <= 0.25 and lone_open["split"] >= 0.5,
         "no frozen disagreement in a connected graph": contradictions == 0,
     }
     verdict = "agree" if all(checks.values()) else "do NOT fully agree"
@@ -316,7 +324,9 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
         "of the second half: Theorem 1's premise on that window), and *split for good* (not agreed, no heading "
         f"moved by more than {FROZEN:g} rad per step in the second half, the final graph is disconnected and the "
         "mean pairwise distance still grows: groups move apart rigidly with different headings; in the open "
-        "plane they never meet again, so the premise fails).",
+        "plane they never meet again, so the premise fails). Fractions are written mean [low, high] with "
+        "Wilson's 95 % interval over the replicas of the point (over those whose graph stayed connected for "
+        "*agreed if so*), final clusters with the t interval, median e_theta with the largest in brackets.",
         "",
         *_rows(table),
         "",

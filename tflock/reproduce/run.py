@@ -68,7 +68,8 @@ def reproduce(name: str, *, quick: bool = False, out: str | Path | None = None, 
 
     matplotlib.use("Agg")  # files only: the figures are drawn without a display
     outcome = exp.report(results, quick)
-    files = _write_report(exp, outcome, out, quick, time.perf_counter() - start, computed, loaded)
+    point_s = sum(float(table["wall_s"].sum()) for table in results.sweeps.values() if "wall_s" in table)
+    files = _write_report(exp, outcome, out, quick, time.perf_counter() - start, computed, loaded, point_s)
     return Reproduction(name, out, files, time.perf_counter() - start, computed, loaded)
 
 
@@ -97,7 +98,8 @@ def _atomic_csv(frame: pd.DataFrame, path: Path) -> None:
         raise ConfigError(f"--out: cannot write {path}: {error.strerror or error}") from None
 
 
-def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed: int, loaded: int) -> list[Path]:
+def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed: int, loaded: int,
+                  point_s: float) -> list[Path]:
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
@@ -113,7 +115,8 @@ def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed:
     header = (f"# {exp.title}\n\nSource: {exp.source}. Size: {size}. "
               f"Command: `tflock reproduce {exp.name}{' --quick' if quick else ''}`. "
               f"Wall time of this invocation: {wall_s:.0f} s ({platform.processor() or platform.machine()}), "
-              f"{computed} runs or sweep points computed and {loaded} read back from an earlier invocation.\n\n")
+              f"{computed} runs or sweep points computed and {loaded} read back from an earlier invocation; the "
+              f"sweep points took {point_s:.0f} s to compute, summed over the points as each recorded it.\n\n")
     comparison = out / "comparison.md"
     comparison.write_text(header + outcome.comparison.strip() + "\n")
     return [*files, table_path, comparison]

@@ -14,8 +14,11 @@ the same 20 initial conditions, and each point is plotted as mean +- standard de
 The paper varies alpha from 1 to 180 degrees but its figures' axis values did not survive the text conversion,
 so the alpha grid is ours (denser at small alpha, where the metrics change fastest). Its e_theta writes
 ||theta_i - theta_j|| without saying whether the difference wraps; ours wraps into [0, pi] (``e_theta``).
-The comparison checks each conclusion stated in sections 5.1-5.2, VI and VII on the data. ``--quick``: alpha in
-{1, 10, 180} degrees, 8 initial conditions, T = 200 in every setting.
+The comparison checks each conclusion stated in sections 5.1-5.2, VI and VII on the data, every mean with its
+95 % t interval over the initial conditions and every difference paired by them. Section 3 keeps headings in
+[0, 2 pi) without saying whether a wall reflection wraps them again: in the bounded arena strategy 1 also runs on
+the other reading, headings as real numbers never wrapped (``params.wrap_headings = false``; strategies 2 and 3
+do not depend on it). ``--quick``: alpha in {1, 10, 180} degrees, 8 initial conditions, T = 200 in every setting.
 """
 
 import math
@@ -26,6 +29,7 @@ import pandas as pd
 
 from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
+from tflock.reproduce.stats import Estimate, mean_ci, paired_difference_ci
 
 #: strategy number -> rule of the vicsek model (DESIGN.md 3.1)
 STRATEGIES = {1: "average", 2: "relative", 3: "vector"}
@@ -39,6 +43,7 @@ SETTINGS = [
 ]
 METRICS = [("e_d", "e_d(T)"), ("e_theta", "e_theta(T) (rad)"), ("clusters", "clusters at T")]
 AGREES, PARTLY, DISAGREES = "agrees", "partly agrees", "does NOT agree"
+REAL = "-real"  # suffix of the sweeps on real-number headings (params.wrap_headings = false)
 STYLE = {1: {"color": "k", "lw": 2.4, "ls": "-"}, 2: {"color": "tab:blue", "lw": 1.4, "ls": "-"},
          3: {"color": "tab:red", "lw": 1.4, "ls": "-."}}  # the paper: bold solid, solid, dash-dot
 
@@ -59,7 +64,7 @@ class Samiloglu(Experiment):
         specs = {}
         for suffix, boundary, bound, steps, *_ in SETTINGS:
             steps = 200 if quick else steps
-            specs[f"samiloglu-{suffix}"] = {
+            spec = {
                 "model": "vicsek",
                 "replicas": 8 if quick else 20,
                 "seed": 0,  # replica r: seed r, so every point shares the same initial conditions (section V)
@@ -68,30 +73,37 @@ class Samiloglu(Experiment):
                 "grid": {"params.boundary": [boundary], "params.async_bound": [bound],
                          "params.rule": list(STRATEGIES.values()), "params.max_turn_deg": self.alphas(quick)},
             }
+            specs[f"samiloglu-{suffix}"] = spec
+            if boundary == "reflecting":  # the other reading: strategy 1 on headings never wrapped (section 3)
+                specs[f"samiloglu-{suffix}{REAL}"] = {
+                    **spec, "set": {**spec["set"], "params.wrap_headings": False},
+                    "grid": {**spec["grid"], "params.rule": [STRATEGIES[1]]}}
         return specs
 
     def report(self, results: Results, quick: bool) -> Report:
         import matplotlib.pyplot as plt
 
         rows = []
-        for table in results.sweeps.values():
+        for name, table in results.sweeps.items():
             keys = ["params.boundary", "params.async_bound", "params.rule", "params.max_turn_deg"]
             for (boundary, bound, rule, alpha), group in table.groupby(keys):
-                row = {"boundary": boundary, "B": int(bound), "steps": int(group["steps"].iloc[0]),
-                       "strategy": RULE_STRATEGY[rule], "rule": rule, "alpha_deg": float(alpha),
-                       "replicas": len(group)}
+                row = {"boundary": boundary, "B": int(bound), "headings": "real" if name.endswith(REAL) else "wrapped",
+                       "steps": int(group["steps"].iloc[0]), "strategy": RULE_STRATEGY[rule], "rule": rule,
+                       "alpha_deg": float(alpha), "replicas": len(group)}
                 for metric in ("e_d", "e_theta", "clusters", "largest_cluster", "de_theta"):
-                    row[metric] = group[f"final_{metric}"].mean()
+                    estimate = mean_ci(group[f"final_{metric}"].to_numpy())
+                    row[metric], row[f"{metric}_lo"], row[f"{metric}_hi"] = estimate.value, estimate.lo, estimate.hi
                     row[f"{metric}_std"] = group[f"final_{metric}"].std(ddof=1) if len(group) > 1 else 0.0
                 # section VI: strategy 1 drifts toward pi; mean distance of the final mean heading from pi
                 gaps = wrap_pi(group["final_mean_heading"].to_numpy() - math.pi)
                 row["heading_from_pi"] = float(np.mean(np.abs(gaps)))
                 rows.append(row)
-        table = pd.DataFrame(rows).sort_values(["boundary", "B", "strategy", "alpha_deg"], key=_boundary_first,
-                                               ignore_index=True)
+        table = pd.DataFrame(rows).sort_values(["headings", "boundary", "B", "strategy", "alpha_deg"],
+                                               key=_boundary_first, ignore_index=True)
+        main = table[table.headings == "wrapped"]
         figures = {}
         for _, boundary, bound, _, figs, label, stem in SETTINGS:
-            part = table[(table.boundary == boundary) & (table.B == bound)]
+            part = main[(main.boundary == boundary) & (main.B == bound)]
             figure, axes = plt.subplots(1, 3, figsize=(13, 3.8))
             for ax, (metric, ylabel) in zip(axes, METRICS, strict=True):
                 for strategy, group in part.groupby("strategy"):
@@ -107,12 +119,14 @@ class Samiloglu(Experiment):
             figure.suptitle(f"{figs}: {label}, T = {steps}, mean +- std over {replicas} initial conditions")
             figure.tight_layout()
             figures[stem] = figure
-        return Report(figures, table, _comparison(table))
+        return Report(figures, table, _comparison(main, table[table.headings == "real"], results))
 
 
 def _boundary_first(column: pd.Series) -> pd.Series:
-    """Sort key: the unbounded plane (open) before the bounded arena, as the paper's sections."""
-    return column.map({"open": 0, "reflecting": 1}) if column.name == "boundary" else column
+    """Sort key: the unbounded plane (open) before the bounded arena, as the paper's sections, and the paper's
+    wrapped headings before the other reading's real ones."""
+    order = {"boundary": {"open": 0, "reflecting": 1}, "headings": {"wrapped": 0, "real": 1}}
+    return column.map(order[column.name]) if column.name in order else column
 
 
 def _verdict(checks: list[bool]) -> str:
@@ -126,7 +140,57 @@ def _rank_corr(x: pd.Series, y: pd.Series) -> float:
     return 0.0 if rx.std() == 0 or ry.std() == 0 else float(rx.corr(ry))
 
 
-def _comparison(table: pd.DataFrame) -> str:
+def _runs(results: Results, boundary: str, bound: int, headings: str = "wrapped") -> pd.DataFrame:
+    """The replicas of a setting's sweep (one row per point and seed)."""
+    suffix = next(s for s, b, B, *_ in SETTINGS if b == boundary and B == bound)
+    return results.sweeps[f"samiloglu-{suffix}{REAL if headings == 'real' else ''}"]
+
+
+def _over_alphas(results: Results, boundary: str, bound: int, strategy: int, metric: str,
+                 headings: str = "wrapped") -> pd.Series:
+    """Per initial condition (seed), `metric` averaged over the alpha grid."""
+    runs = _runs(results, boundary, bound, headings)
+    return runs[runs["params.rule"] == STRATEGIES[strategy]].groupby("seed")[f"final_{metric}"].mean()
+
+
+def _grid_mean(results: Results, boundary: str, bound: int, strategy: int, metric: str,
+               headings: str = "wrapped") -> Estimate:
+    """`metric` averaged over the alpha grid, with the t interval over the initial conditions."""
+    return mean_ci(_over_alphas(results, boundary, bound, strategy, metric, headings).to_numpy())
+
+
+def _cell(row: pd.Series, metric: str) -> str:
+    return Estimate(row[metric], row[f"{metric}_lo"], row[f"{metric}_hi"], int(row["replicas"])).short(3)
+
+
+def _heading_gap(results: Results, boundary: str, strategy: int) -> Estimate:
+    """abs(final mean heading - pi) per initial condition, averaged over the alphas and both B, with its t
+    interval over the initial conditions (section VI's bias toward pi)."""
+    gaps = []
+    for bound in (1, 10):
+        runs = _runs(results, boundary, bound)
+        runs = runs[runs["params.rule"] == STRATEGIES[strategy]]
+        gaps.append(pd.Series(np.abs(wrap_pi(runs["final_mean_heading"].to_numpy() - math.pi)), index=runs["seed"]))
+    return mean_ci(pd.concat(gaps).groupby(level=0).mean().to_numpy())
+
+
+def _lowest_count(runs: pd.DataFrame, wide: pd.DataFrame, metric: str, first: pd.DataFrame | None = None) -> int:
+    """The alphas at which strategy 1 is not significantly above the better (by mean) of strategies 2 and 3: the
+    95 % interval of the paired difference (same initial conditions) reaches zero or below. `first`: strategy 1's
+    runs from another sweep (the other reading), else from `runs`."""
+    first = runs if first is None else first
+    count = 0
+    for alpha in wide.index:
+        rival = STRATEGIES[int(wide.loc[alpha, [2, 3]].idxmin())]
+        mine = first[(first["params.rule"] == STRATEGIES[1]) & (first["params.max_turn_deg"] == alpha)]
+        theirs = runs[(runs["params.rule"] == rival) & (runs["params.max_turn_deg"] == alpha)]
+        pairs = mine.set_index("seed")[f"final_{metric}"].to_frame("s1").join(
+            theirs.set_index("seed")[f"final_{metric}"].to_frame("rival"), how="inner")
+        count += paired_difference_ci(pairs["rival"], pairs["s1"]).lo <= 1e-9
+    return count
+
+
+def _comparison(table: pd.DataFrame, real: pd.DataFrame, results: Results) -> str:
     settings = [(b, bound, label, figs) for _, b, bound, _, figs, label, _ in SETTINGS]
     metrics = [metric for metric, _ in METRICS]
     verdicts: list[tuple[str, str]] = []
@@ -147,49 +211,54 @@ def _comparison(table: pd.DataFrame) -> str:
                 first, last = rows[metric].iloc[0], rows[metric].iloc[-1]
                 rho = _rank_corr(rows["alpha_deg"], rows[metric])
                 falls.append(last < first and rho < 0)
-                cells.append(f"{first:.3g} -> {last:.3g} ({rho:+.2f})")
+                cells.append(f"{_cell(rows.iloc[0], metric)} -> {_cell(rows.iloc[-1], metric)} ({rho:+.2f})")
             lines1.append(f"| {label} ({figs}) | {strategy} | " + " | ".join(cells) + " |")
     verdicts.append((f"e_d(T), e_theta(T) and the cluster count fall as alpha grows, every strategy and setting "
                      f"({sum(falls)} of {len(falls)} strategy-setting-metric curves fall overall)", _verdict(falls)))
 
     # strategy 1 best at every alpha (per setting); strategies 2 and 3 close on the figure's scale
-    lines2 = ["| setting | metric | alphas where strategy 1 is lowest (within 1 s.e.) | mean s1 | mean s2 | mean s3 | "
-              "mean abs(s2 - s3) / the figure's range |", "|---|---|---|---|---|---|---|"]
+    lines2 = ["| setting | metric | alphas where strategy 1 is lowest (not significantly above the better of 2 "
+              "and 3) | s1 | s2 | s3 | mean abs(s2 - s3) / the figure's range |", "|---|---|---|---|---|---|---|"]
     close = []
     for boundary, bound, label, figs in settings:
         rows = part(boundary, bound)
+        runs = _runs(results, boundary, bound)
         counts = []
         for metric in metrics:
             wide = rows.pivot(index="alpha_deg", columns="strategy", values=metric)
-            sem = rows.pivot(index="alpha_deg", columns="strategy", values=f"{metric}_std") / np.sqrt(
-                rows.pivot(index="alpha_deg", columns="strategy", values="replicas"))
-            rival = wide[[2, 3]].idxmin(axis=1)  # the better of strategies 2 and 3 at each alpha
-            rival_mean = np.array([wide.loc[a, r] for a, r in rival.items()])
-            rival_sem = np.array([sem.loc[a, r] for a, r in rival.items()])
-            lowest = int((wide[1].to_numpy() <= rival_mean + np.hypot(sem[1].to_numpy(), rival_sem) + 1e-9).sum())
+            lowest = _lowest_count(runs, wide, metric)
             counts.append(lowest >= 0.75 * len(wide))
             span = max(float(wide.to_numpy().max() - wide.to_numpy().min()), 1e-12)
             gap = float((wide[2] - wide[3]).abs().mean()) / span
             close.append(gap < 0.1)
-            lines2.append(f"| {label} | {metric} | {lowest} of {len(wide)} | {wide[1].mean():.3g} | "
-                          f"{wide[2].mean():.3g} | {wide[3].mean():.3g} | {gap:.3f} |")
+            means = " | ".join(_grid_mean(results, boundary, bound, k, metric).short(3) for k in STRATEGIES)
+            lines2.append(f"| {label} | {metric} | {lowest} of {len(wide)} | {means} | {gap:.3f} |")
         held = ", ".join(m for m, ok in zip(metrics, counts, strict=True) if ok) or "none"
-        verdicts.append((f"{figs} ({label}): strategy 1 is best at every alpha (metrics where it is lowest, within "
-                         f"one standard error, at >= 3/4 of the alphas: {held})", _verdict(counts)))
+        verdicts.append((f"{figs} ({label}): strategy 1 is best at every alpha (metrics where it is lowest, not "
+                         f"significantly above the better of strategies 2 and 3, at >= 3/4 of the alphas: {held})",
+                         _verdict(counts)))
     verdicts.append((f"strategies 2 and 3 are close to each other (mean gap under a tenth of the plotted range in "
                      f"{sum(close)} of {len(close)} setting-metric panels)", _verdict(close)))
 
-    # asynchronous worse than synchronous; bounded better than unbounded
-    def higher(better: tuple[str, int], worse: tuple[str, int]) -> tuple[int, int, list[str]]:
-        count = total = 0
+    # asynchronous worse than synchronous; bounded better than unbounded, cell by cell, paired by initial condition
+    def higher(better: tuple[str, int], worse: tuple[str, int]) -> tuple[int, int, int, int, list[str]]:
+        count = total = above = below = 0
         cells = []
+        keys = ["params.rule", "params.max_turn_deg", "seed"]
         for metric in metrics:
-            good = part(*better).set_index(["strategy", "alpha_deg"])[metric]
-            bad = part(*worse).set_index(["strategy", "alpha_deg"])[metric]
-            hits = int((bad > good).sum())
-            count, total = count + hits, total + len(good)
-            cells.append(f"{hits} of {len(good)}")
-        return count, total, cells
+            good = _runs(results, *better).set_index(keys)[f"final_{metric}"]
+            bad = _runs(results, *worse).set_index(keys)[f"final_{metric}"]
+            pairs = pd.concat([good, bad], axis=1, keys=["good", "bad"]).dropna()
+            hits = sig = opposite = 0
+            for _, cell in pairs.groupby(level=[0, 1]):
+                gap = paired_difference_ci(cell["good"], cell["bad"])
+                hits += gap.value > 0
+                sig += gap.lo > 0
+                opposite += gap.hi < 0
+            n_cells = pairs.groupby(level=[0, 1]).ngroups
+            count, total, above, below = count + hits, total + n_cells, above + sig, below + opposite
+            cells.append(f"{hits} of {n_cells} ({sig} / {opposite})")
+        return count, total, above, below, cells
 
     lines3 = ["| comparison | e_d | e_theta | clusters |", "|---|---|---|---|"]
     for (first, second), claim in (
@@ -197,26 +266,47 @@ def _comparison(table: pd.DataFrame) -> str:
             ((("reflecting", 1), ("reflecting", 10)), "bounded: B = 10 is worse than synchronous (section 5.2.2)"),
             ((("reflecting", 1), ("open", 1)), "synchronous: the bounded arena is better than the plane (5.2.1)"),
             ((("reflecting", 10), ("open", 10)), "B = 10: the bounded arena is better than the plane (5.2.2)")):
-        count, total, cells = higher(first, second)
+        count, total, above, below, cells = higher(first, second)
         lines3.append(f"| {claim} | " + " | ".join(cells) + " |")
-        verdicts.append((f"{claim} ({count} of {total} strategy-alpha-metric cells)",
-                         _verdict([count >= 0.9 * total, count >= 0.6 * total])))
+        verdicts.append((f"{claim} ({count} of {total} strategy-alpha-metric cells by their means; the paired "
+                         f"difference's 95 % interval lies on the paper's side in {above} and on the other in "
+                         f"{below})", _verdict([count >= 0.9 * total and below == 0, count >= 0.6 * total])))
 
     # best orientation agreement: synchronous, holonomic (alpha = 180), strategy 1, bounded (section VII)
     alpha_max = table["alpha_deg"].max()
     best_case = part("reflecting", 1, 1).set_index("alpha_deg")["e_theta"][alpha_max]
     top = table.loc[table["e_theta"].idxmin()]
+    best_row = part("reflecting", 1, 1).set_index("alpha_deg").loc[alpha_max]
     verdicts.append((f"the best orientation agreement is synchronous, alpha = {alpha_max:g}, strategy 1, bounded "
-                     f"(e_theta(T) = {best_case:.2g} rad there; the lowest of all points: {top.e_theta:.2g} rad)",
-                     _verdict([best_case <= top.e_theta + 1e-3])))
+                     f"(e_theta(T) = {_cell(best_row, 'e_theta')} rad there; the lowest mean of all points: "
+                     f"{_cell(top, 'e_theta')} rad)", _verdict([best_case <= top.e_theta + 1e-3])))
 
     # section VI: strategy 1 heads near pi ("flocks always tend towards the left"), strategies 2 and 3 anywhere
-    plane = table[table.boundary == "open"].groupby("strategy")["heading_from_pi"].mean()
-    arena = table[table.boundary == "reflecting"].groupby("strategy")["heading_from_pi"].mean()
+    plane = {k: _heading_gap(results, "open", k) for k in STRATEGIES}
+    arena = {k: _heading_gap(results, "reflecting", k) for k in STRATEGIES}
     verdicts.append((f"on the plane strategy 1's flocks head near pi, strategies 2 and 3 anywhere (mean "
-                     f"abs(final mean heading - pi): {plane[1]:.2f}, {plane[2]:.2f}, {plane[3]:.2f} rad; no bias "
-                     f"gives pi / 2 = 1.57; in the arena, where walls turn flocks round: {arena[1]:.2f}, "
-                     f"{arena[2]:.2f}, {arena[3]:.2f})", _verdict([plane[1] < 0.5 and min(plane[2], plane[3]) > 1.0])))
+                     f"abs(final mean heading - pi), over alpha and B, 95 % interval over the initial conditions: "
+                     f"{', '.join(plane[k].short(2) for k in STRATEGIES)} rad; no bias gives pi / 2 = 1.57; in the "
+                     f"arena, where walls turn flocks round: {', '.join(arena[k].short(2) for k in STRATEGIES)})",
+                     _verdict([plane[1].hi < 0.5 and min(plane[2].lo, plane[3].lo) > 1.0])))
+
+    # the other reading of the bounded arena: strategy 1 on real-number headings, never wrapped
+    lines4 = ["| setting | metric | alphas where strategy 1 (real headings) is lowest | s1, real headings | "
+              "s1, wrapped (ours) | s2 | s3 |", "|---|---|---|---|---|---|---|"]
+    other_leads = []
+    if len(real):
+        for boundary, bound, label, _ in settings:
+            if boundary != "reflecting":
+                continue
+            rows = part(boundary, bound)
+            runs, first = _runs(results, boundary, bound), _runs(results, boundary, bound, "real")
+            for metric in metrics:
+                wide = rows.pivot(index="alpha_deg", columns="strategy", values=metric)
+                lowest = _lowest_count(runs, wide, metric, first)
+                other_leads.append(lowest >= 0.75 * len(wide))
+                cells = [_grid_mean(results, boundary, bound, 1, metric, "real").short(3),
+                         *(_grid_mean(results, boundary, bound, k, metric).short(3) for k in STRATEGIES)]
+                lines4.append(f"| {label} | {metric} | {lowest} of {len(wide)} | " + " | ".join(cells) + " |")
 
     summary = [f"| {claim} | {verdict} |" for claim, verdict in verdicts]
     tally = {v: sum(verdict == v for _, verdict in verdicts) for v in (AGREES, PARTLY, DISAGREES)}
@@ -231,12 +321,24 @@ def _comparison(table: pd.DataFrame) -> str:
             "stays disordered at small alpha while strategies 2 and 3, which are blind to the cut, agree. The paper "
             "states strategy 1 best in the arena too; it does not say how its headings are kept after a "
             "reflection (we wrap them into [0, 2 pi) as section 3.2 defines them).")
+    if other_leads:
+        notes.append(
+            "The other reading the paper allows, headings kept as real numbers and never wrapped (after a wall "
+            "either: heading pi reflects to 0 and pi + 0.1 to -0.1; `params.wrap_headings = false`), "
+            + ("does give strategy 1 the lead in the arena" if all(other_leads) else
+               f"does not give strategy 1 the lead in the arena either (it is lowest at >= 3/4 of the alphas in "
+               f"{sum(other_leads)} of {len(other_leads)} setting-metric panels)")
+            + ": see the last table. Strategies 2 and 3 use only wrapped differences and unit vectors, so their runs "
+            "are the same under either reading.")
     return "\n".join([
         "The paper (sections 5.1-5.2, VI, VII) states: the metrics fall as the turn limit alpha is relaxed; strategy "
         "1 is best for every alpha and strategies 2 and 3 are close to each other; asynchrony (B = 10) makes every "
         "strategy worse; the bounded arena does better than the unbounded plane; the best orientation agreement is "
         "synchronous, holonomic, strategy 1, bounded; strategy 1 is biased toward pi. Every number below is a "
-        "final value (t = T) averaged over the initial conditions, as in the figures.",
+        "final value (t = T) averaged over the initial conditions, as in the figures, written mean [low, high] with "
+        f"the 95 % t interval over the {int(table['replicas'].min())} initial conditions (the same ones at every "
+        "point, so strategies, settings and readings are compared pair by pair: a difference is significant where "
+        "the 95 % interval of the paired difference excludes zero).",
         "",
         f"**Of {len(verdicts)} stated conclusions, {tally[AGREES]} agree with our data, {tally[PARTLY]} partly, "
         f"{tally[DISAGREES]} do not.**",
@@ -254,10 +356,13 @@ def _comparison(table: pd.DataFrame) -> str:
         "",
         *lines2,
         "",
-        "### Synchronous vs asynchronous, bounded vs unbounded (strategy-alpha cells where the second is higher)",
+        "### Synchronous vs asynchronous, bounded vs unbounded (strategy-alpha cells where the second is higher; "
+        "in brackets, significantly higher / significantly lower)",
         "",
         *lines3,
         "",
+        *(["### The other reading: strategy 1 on real-number headings in the bounded arena (means over the alpha "
+           "grid)", "", *lines4, ""] if other_leads else []),
         "Readings: our e_theta wraps each pairwise difference into [0, pi]; the paper's ||theta_i - theta_j|| on "
         "headings in [0, 2 pi) may not, which would penalise strategies 2 and 3 (whose flocks settle at any "
         "heading, so members straddling 0 count as nearly 2 pi apart) but hardly strategy 1 on the plane (whose "

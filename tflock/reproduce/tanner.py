@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from tflock.reproduce.experiment import Experiment, Report, Results, Series
+from tflock.reproduce.stats import Estimate, mean_ci, share_text
 
 N = 10
 D = 1.0  # desired distance d: the minimum of V
@@ -150,6 +151,8 @@ class Tanner(Experiment):
                 "near_collision_fraction": (group["final_min_distance"] < CLOSE).mean(),
                 "valencies_constant_fraction": valencies_still.mean(),
                 "valency_mean_final": group["final_valency_mean"].mean(),
+                "valency_mean_final_lo": mean_ci(group["final_valency_mean"]).lo,
+                "valency_mean_final_hi": mean_ci(group["final_valency_mean"]).hi,
                 "potential_still_fraction": (group["std_potential_energy"] < STILL_TOL).mean(),
                 # fixed graphs: the potential per edge, V(d) (= 1 for d = 1) when every edge sits at d
                 "potential_per_edge": (group["final_potential_energy"] / edges).mean()
@@ -254,7 +257,10 @@ class Tanner(Experiment):
         valency_start, valency_end = (float(np.mean([switching[f"valency_{i}"][k] for i in range(N)]))
                                       for k in (0, -1))
 
-        def pct(x: float) -> str:
+        def pct(x: float, n: float | None = None) -> str:
+            """A fraction in per cent; of `n` replicas, with its Wilson 95 % interval."""
+            if n is not None:
+                return share_text(x, n, percent=True)
             return "n/a" if math.isnan(x) else f"{100 * x:.0f} %"
 
         lines = ["| case | replicas | connected | velocities synchronised (all / connected) | "
@@ -262,10 +268,14 @@ class Tanner(Experiment):
                  "(2nd half) | mean final valency | potential at rest |",
                  "|---|---|---|---|---|---|---|---|---|"]
         for case, r in rows.iterrows():
-            lines.append(f"| {case} | {int(r.replicas)} | {pct(r.connected_fraction)} | {pct(r.sync_fraction)} / "
-                         f"{pct(r.sync_fraction_connected)} | {r.min_distance_min:.3g} / {r.min_distance_median:.3g} "
-                         f"| {pct(r.near_collision_fraction)} | {pct(r.valencies_constant_fraction)} | "
-                         f"{r.valency_mean_final:.2f} | {pct(r.potential_still_fraction)} |")
+            n, connected = r.replicas, r.connected_fraction * r.replicas
+            valency = Estimate(r.valency_mean_final, r.valency_mean_final_lo, r.valency_mean_final_hi, n)
+            lines.append(f"| {case} | {int(n)} | {pct(r.connected_fraction, n)} | {pct(r.sync_fraction, n)} / "
+                         f"{pct(r.sync_fraction_connected, connected)} | {r.min_distance_min:.3g} / "
+                         f"{r.min_distance_median:.3g} | {pct(r.near_collision_fraction, n)} | "
+                         f"{pct(r.valencies_constant_fraction, n)} | "
+                         f"{valency.short()} | "
+                         f"{pct(r.potential_still_fraction, n)} |")
         single = ["| case | single runs | W / Q non-increasing | largest one-step rise / total fall | "
                   "min distance over the run (m) | time to sync (median, s) |", "|---|---|---|---|---|---|"]
         for case in ("fixed-random", "switching"):
@@ -281,15 +291,21 @@ class Tanner(Experiment):
             at_rest = "agrees"
         else:
             at_rest = "agrees only in part: still settling at the end in " + ", ".join(
-                f"{pct(1 - f)} of the {case} runs" for case, f in still.items() if f < 1)
+                f"{pct(1 - f, rows.loc[case].replicas)} of the {case} runs" for case, f in still.items() if f < 1)
         checks = {
-            "velocities converge to a common vector on a connected graph (Theorems 1-2)":
+            f"velocities converge to a common vector on a connected graph (Theorems 1-2; synchronised among the "
+            f"connected replicas: fixed random {pct(fr.sync_fraction_connected, fr.connected_fraction * fr.replicas)},"
+            f" complete {pct(fc.sync_fraction_connected, fc.connected_fraction * fc.replicas)}, switching "
+            f"{pct(sw.sync_fraction_connected, sw.connected_fraction * sw.replicas)})":
                 min(fr.sync_fraction_connected, fc.sync_fraction_connected, sw.sync_fraction_connected) == 1,
             "W and Q never increase (eqs. 8, 12)":
                 min(fr.lyapunov_nonincreasing_fraction, sw.lyapunov_nonincreasing_fraction) == 1,
-            "no collisions with a complete fixed graph (Corollary 3) or with switching (section 5)":
+            f"no collisions with a complete fixed graph (Corollary 3) or with switching (section 5; near collisions "
+            f"in {pct(fc.near_collision_fraction, fc.replicas)} and {pct(sw.near_collision_fraction, sw.replicas)} "
+            "of the replicas)":
                 fc.near_collision_fraction == 0 and sw.near_collision_fraction == 0 and sw.single_min_distance_min > 0,
-            "switching stops and the valencies settle (Theorem 2 (1), Fig. 6)": sw.valencies_constant_fraction == 1,
+            f"switching stops and the valencies settle (Theorem 2 (1), Fig. 6; constant in the second half in "
+            f"{pct(sw.valencies_constant_fraction, sw.replicas)} of the replicas)": sw.valencies_constant_fraction == 1,
             "valencies grow; the steady switching graph is well connected but not complete (section 6)":
                 valency_start < valency_end < N - 1,
             "the potential settles at a (local) minimum: relative positions at rest (Theorems 1-2)": at_rest,
@@ -307,7 +323,8 @@ class Tanner(Experiment):
             "",
             *verdicts,
             "",
-            "Replicas (sweep; final values, or statistics over the second half of the run):",
+            "Replicas (sweep; final values, or statistics over the second half of the run; fractions with Wilson's "
+            "95 % interval over the replicas, in brackets, the mean final valency with its t interval):",
             "",
             *lines,
             "",
@@ -316,14 +333,16 @@ class Tanner(Experiment):
             *single,
             "",
             f"Fixed random graph: near collisions between agents that are not neighbours in "
-            f"{pct(fr.near_collision_fraction)} of the replicas (smallest final distance {fr.min_distance_min:.2g} m): "
+            f"{pct(fr.near_collision_fraction, fr.replicas)} of the replicas (smallest final distance "
+            f"{fr.min_distance_min:.2g} m): "
             "the paper's remark that a fixed incomplete graph cannot prevent them, seen here as two agents "
             "converging onto the same point. The potential per edge of the fixed graphs at the end is "
             f"{fr.potential_per_edge:.3f} (random) and {fc.potential_per_edge:.3f} (complete), V(d) = "
             f"{pair_potential(D):.0f}: every edge sits at d only where the graph allows it (Corollary 1, trees); "
             "elsewhere the minimum is a compromise. Switching runs whose graph is disconnected in the second half "
-            f"({pct(1 - sw.connected_fraction)}) break the theorems' assumption, and their components need not "
-            f"share a velocity (synchronised in {pct(sw.sync_fraction)} of all switching runs); of the "
+            f"({pct(1 - sw.connected_fraction, sw.replicas)}) break the theorems' assumption, and their components "
+            "need not "
+            f"share a velocity (synchronised in {pct(sw.sync_fraction, sw.replicas)} of all switching runs); of the "
             f"{len(starts)} single switching runs, {sum(starts)} start and {sum(ends)} end with a connected graph: "
             "the paper's random initial draw does not guarantee the connectivity its theorems assume. The mean "
             f"valency of the plotted switching run grows from {valency_start:.1f} to {valency_end:.1f}.",

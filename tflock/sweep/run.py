@@ -115,8 +115,9 @@ def _read(path: Path) -> pd.DataFrame:
 def _message(error: BaseException) -> str:
     """An error as one line; its type is named unless it is one of ours (whose messages say it all)."""
     from tflock.engine import EngineError
+    from tflock.simulation import NumericalFaultError
 
     text = " ".join(str(error).split())
-    if isinstance(error, (ConfigError, EngineError, SweepError)) and text:
+    if isinstance(error, (ConfigError, EngineError, NumericalFaultError, SweepError)) and text:
         return text
     return f"{type(error).__name__}: {text}" if text else type(error).__name__

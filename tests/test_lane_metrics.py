@@ -1,0 +1,115 @@
+"""Vicsek metrics taken by the lane-wise neighbour pass (tflock.lane_graph) against the NumPy reference.
+
+The lane-wise CPU step's metrics() runs the next step's neighbour pass early and finds the R-graph's clusters and
+neighbour counts in it; these tests compare every such metric with the O(N^2) reference on states that stress the
+cluster search (one cluster over the whole box, hundreds of small ones, neighbours across the periodic wrap and
+across stripes), check that the stripes do not change the partition, and that taking metrics leaves the trajectory
+bit-identical. The sampled pair errors are checked against the same draws made in NumPy.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import ARCH, PRECISION
+
+from tflock import reference as ref
+from tflock.config import load_config
+from tflock.lane_graph import LaneComponents
+from tflock.metrics import EXACT_PAIRS_MAX, SAMPLED_PAIRS, pairwise_errors
+from tflock.models.vicsek import Vicsek
+from tflock.space import boundary_code
+
+pytestmark = pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise pass runs on the CPU arch only")
+
+# (n, box, boundary, rule): mean degree about 0.8 (many small clusters), about 7 (a few large ones), about 60 (one
+# cluster), each boundary and each way the pass sums (vectors, angles)
+CASES = [(500, 45.0, "periodic", "vector"), (500, 45.0, "reflecting", "average"), (2500, 34.0, "periodic", "average"),
+         (2500, 34.0, "reflecting", "vector"), (3000, 12.5, "periodic", "vector"), (3000, 12.5, "reflecting", "vector")]
+
+
+def config(n, box, boundary="periodic", rule="vector", noise=0.3, **extra):
+    return load_config(overrides={"params.n": n, "params.box": box, "params.radius": 1.0, "params.speed": 0.3,
+                                  "params.noise": noise, "params.rule": rule, "params.boundary": boundary,
+                                  "seed": 11, "engine.precision": PRECISION, **extra})
+
+
+def expected_graph(model):
+    p = model.params
+    return ref.graph_metrics(model.state()["x"].astype(np.float64), p.radius, p.boundary, p.box)
+
+
+def assert_graph_metrics(got, expected):
+    assert got["clusters"] == expected["clusters"]
+    assert got["largest_cluster"] == pytest.approx(expected["largest_cluster"], abs=1e-12)
+    assert got["max_neighbors"] == expected["max_neighbors"]
+    assert got["mean_neighbors"] == pytest.approx(expected["mean_neighbors"], abs=1e-9)
+
+
+@pytest.mark.parametrize(("n", "box", "boundary", "rule"), CASES)
+def test_lane_wise_metrics_match_reference(engine, n, box, boundary, rule):
+    cfg = config(n, box, boundary, rule)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    assert model.components is not None  # the lane-wise path
+    for _ in range(3):  # the initial state, then states with aligned clusters
+        got = model.metrics()
+        assert_graph_metrics(got, expected_graph(model))
+        theta = model.state()["theta"]
+        polarization, mean_heading = ref.heading_order(theta)
+        assert got["polarization"] == pytest.approx(polarization, abs=1e-6)
+        assert math.cos(got["mean_heading"] - mean_heading) == pytest.approx(1.0, abs=1e-6)
+        model.advance(10)
+
+
+def test_clusters_joined_across_the_periodic_wrap(engine):
+    """Agents in a line across the box's corner: one cluster only through the wrap in x and in y."""
+    cfg = config(40, 20.0)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    t = np.arange(40, dtype=np.float64)
+    x = np.stack([(10.0 + 0.5 * t) % 20.0, (10.0 + 0.5 * t) % 20.0], axis=1)  # steps of 0.71 < R
+    model.set_state({"x": x, "theta": np.zeros(40)}, 0)
+    got = model.metrics()
+    assert got["clusters"] == 1.0 and got["largest_cluster"] == 1.0
+    assert_graph_metrics(got, expected_graph(model))
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 7])
+def test_stripes_do_not_change_the_partition(engine, threads):
+    cfg = config(2500, 34.0)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    model.advance(12)
+    expected = expected_graph(model)
+    model.components = LaneComponents(model.grid, threads)
+    assert model.components.stripes()[0] == min(8 * threads, 34 // 4)
+    assert_graph_metrics(model.metrics(), expected)
+
+
+@pytest.mark.parametrize("extra", [{}, {"params.noise_type": "vectorial"}, {"params.neighbours": "topological"}],
+                         ids=["angular", "vectorial", "topological"])
+def test_metrics_leave_the_trajectory_unchanged(engine, extra):
+    """Bit for bit, also with vectorial noise (the early pass must leave the counts the noise weight uses) and with
+    topological neighbours (whose step takes its own sums: metrics() must not make it skip them)."""
+    cfg = config(2500, 34.0, **extra)
+    observed, plain = Vicsek(cfg.params, cfg.seed, engine), Vicsek(cfg.params, cfg.seed, engine)
+    for _ in range(12):
+        observed.metrics()
+        observed.advance(1)
+    observed.metrics()
+    plain.advance(12)
+    for key, value in plain.state().items():
+        assert np.array_equal(observed.state()[key], value), key
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting"])
+def test_sampled_pair_errors_are_the_documented_draws(engine, boundary):
+    n = EXACT_PAIRS_MAX + 904
+    cfg = config(n, 60.0, boundary)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    model.advance(3)
+    p = model.params
+    got = pairwise_errors(model.pos, model.theta, n, p.box, boundary_code(boundary), 2, model.seed, model.step_index)
+    x, theta = model.pos.to_numpy().T, model.theta.to_numpy()  # array order: the order the samples index
+    expected = ref.pairwise_errors_sampled(x, theta, boundary, p.box, model.seed, model.step_index, SAMPLED_PAIRS)
+    assert got == pytest.approx(expected, rel=1e-6)
+    exact = ref.pairwise_errors(x, theta, boundary, p.box)
+    assert got == pytest.approx(exact, rel=0.02)  # an estimate of the mean over all pairs

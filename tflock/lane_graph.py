@@ -1,0 +1,249 @@
+"""Clusters of the R-graph found during a lane-wise neighbour pass (DESIGN.md section 4).
+
+A model's lane-wise CPU kernel already compares every candidate with ``LANES`` agents at once to sum over its
+neighbours. :class:`LaneComponents` lets that same pass find the connected components of the graph
+|x_i - x_j| <= R, so a metrics pass costs little more than the neighbour sums the next step needs anyway.
+
+The grid's layers (the last cell coordinate, and the replica) are cut into stripes of consecutive layers; each
+stripe is one task, its runs of cells taken in slot order by one thread. Every agent of a stripe is settled when its
+block of lanes closes: it joins the sets of its neighbours at smaller slots in the same stripe (all settled before
+it), so in the vector loop a block only keeps, per lane, the set label (``parent``) its near candidates before it in the
+stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block. After the loop the
+block's lanes find their roots: from the shared label (almost always) with one scalar step, or when MIXED by
+re-reading the lane's candidates and joining each one's set (:func:`block_roots`, :func:`join_candidate`); then
+the lanes within R of each other join those roots into one set (:func:`settle_block`). This phase writes only
+parents of its own stripe's slots, so it needs no atomics; a parent always points to a smaller slot, so each set's
+root is its smallest slot.
+
+Pairs whose agents lie in two stripes (neighbouring layers at a stripe's edge, and a periodic grid's wrap) are
+joined afterwards by :meth:`LaneComponents.finish` in one serial pass over the stripes' edge layers (a few per cent
+of the agents), which then counts the roots and takes the largest set's size (kept at each root by every join).
+The partition, and hence the cluster count and the largest cluster, do not depend on the thread count or the
+stripes.
+"""
+
+import numpy as np
+import taichi as ti
+
+from tflock.neighbors import LANES, CellGrid, load_cell, load_vec, span_agents, span_count, stencil_span
+from tflock.space import displacement
+
+#: no candidate seen: the initial smallest label of a lane
+NO_LABEL = 2**31 - 1
+#: a lane's near candidates carried two set labels (see fold_label)
+MIXED = -1
+#: stripes per CPU thread: enough tasks to even out dense and empty parts of the grid
+STRIPES_PER_THREAD = 8
+#: layers a stripe holds at least (its edge layers are joined in a second, scalar pass)
+MIN_STRIPE_LAYERS = 4
+LANE_BITS = LANES.bit_length() - 1  # log2(LANES)
+
+
+@ti.func
+def _root(parent: ti.template(), x):
+    """Root of x inside a stripe (phase 1, one thread: plain writes), halving the path."""
+    while parent[x] != x:
+        gp = parent[parent[x]]
+        parent[x] = gp
+        x = gp
+    return x
+
+
+@ti.func
+def _join(parent: ti.template(), size: ti.template(), a, b):
+    """Merge the sets of roots a and b (plain writes: one thread owns both); the smaller root stays the root
+    (returned) and takes the other's size."""
+    lo = ti.min(a, b)
+    hi = ti.max(a, b)
+    parent[hi] = lo
+    size[lo] += size[hi]
+    return lo
+
+
+@ti.func
+def stripe_range(j, n_stripes, layers, layer_buckets, start: ti.template()):
+    """Buckets [b_lo, b_hi) and slots [s_lo, s_hi) of stripe j."""
+    b_lo = (j * layers // n_stripes) * layer_buckets
+    b_hi = ((j + 1) * layers // n_stripes) * layer_buckets
+    return b_lo, b_hi, start[b_lo], start[b_hi]
+
+
+@ti.func
+def fold_label(label, other, near, candidate):
+    """Per lane, the set labels of its near candidates so far: `label` the first (NO_LABEL: none yet), `other` a
+    second one (NO_LABEL: none), or MIXED once a third differs from both; `candidate` is one more candidate's label,
+    folded into the lanes it is `near` (vector loop). Two labels are often one set (one of them an earlier root)."""
+    first = near & (label == NO_LABEL)
+    second = near & ~first & (label != candidate)
+    other = ti.select(second, ti.select((other == candidate) | (other == NO_LABEL), candidate, MIXED), other)
+    return ti.select(first, candidate, label), other
+
+
+@ti.func
+def block_roots(width, label, other, parent: ti.template(), size: ti.template()):
+    """Per lane of a block of `width` lanes, the root of the set of its near candidates before the block in the
+    stripe (-1: none near), from :func:`fold_label`'s labels, and the bit mask of the lanes whose candidates carried
+    two labels: the caller re-reads their candidates, joins each one's set with :func:`join_candidate` and puts the
+    root in their place."""
+    roots = ti.Vector([-1] * LANES)
+    recheck = 0
+    for q in ti.static(range(LANES)):
+        if q < width:
+            if label[q] != NO_LABEL:
+                r = _root(parent, label[q])
+                if other[q] == MIXED:
+                    recheck |= 1 << q
+                elif other[q] != NO_LABEL:
+                    r2 = _root(parent, other[q])
+                    if r2 != r:
+                        r = _join(parent, size, r, r2)
+                roots[q] = r
+    return roots, recheck
+
+
+@ti.func
+def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
+    """Settle the block's lanes (slots i0 .. i0 + width - 1): the lanes within R of each other (bits of `inmask`,
+    itself included) form the block's own components, found by doubling bit masks; each such component joins the
+    roots its lanes found (`roots`, -1 for none) into one set, or starts a set rooted at its first lane."""
+    same = True  # every lane found the same set: it is theirs (the common case inside a flock)
+    for q in ti.static(range(1, LANES)):
+        if q < width:
+            same = same and roots[q] == roots[0]
+    if same and roots[0] >= 0:
+        for q in ti.static(range(LANES)):
+            if q < width:
+                parent[i0 + q] = roots[0]
+        size[roots[0]] += width
+    else:
+        _settle_components(i0, width, roots, inmask, parent, size)
+
+
+@ti.func
+def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
+    """:func:`settle_block` where the lanes found different sets, or none."""
+    comp = inmask & ((1 << width) - 1)
+    for _ in ti.static(range(LANE_BITS)):  # after round k, every lane within 2^k hops
+        grown = comp
+        for q in ti.static(range(LANES)):
+            grown |= ti.select(((comp >> q) & 1) == 1, comp[q], 0)
+        comp = grown
+    joined = ti.Vector([-1] * LANES)  # the set of each component, at its first lane
+    for q in ti.static(range(LANES)):
+        if q < width and (comp[q] & ((1 << q) - 1)) == 0:
+            r = -1
+            m = comp[q]
+            while m != 0:
+                bit = m & (-m)
+                other = roots[ti.cast(ti.math.popcnt(bit - 1), ti.i32)]
+                if other >= 0:
+                    other = _root(parent, other)
+                    if r < 0:
+                        r = other
+                    elif other != r:
+                        r = _join(parent, size, r, other)
+                m ^= bit
+            lanes_in = ti.cast(ti.math.popcnt(comp[q]), ti.i32)
+            if r < 0:
+                r = i0 + q
+                size[r] = lanes_in
+            else:
+                size[r] += lanes_in
+            joined[q] = r
+    for q in ti.static(range(LANES)):
+        if q < width:
+            first = comp[q] & (-comp[q])
+            parent[i0 + q] = joined[ti.cast(ti.math.popcnt(first - 1), ti.i32)]
+
+
+@ti.func
+def join_candidate(r, k, parent: ti.template(), size: ti.template()):
+    """The merged root of root r (-1: none yet) and candidate k's set (a recheck, inside a stripe)."""
+    other = _root(parent, k)
+    if r < 0:
+        r = other
+    elif other != r:
+        r = _join(parent, size, r, other)
+    return r
+
+
+@ti.kernel
+def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, radius: float, box: float, nc: ti.i32,
+                   n_buckets: ti.i32, layout: ti.template(), metric: ti.template(), dim: ti.template(),
+                   start: ti.types.ndarray(), mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                   coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
+    """Join the pairs within R whose agents lie in two stripes, in one serial pass. Cells are at least R wide, so
+    such a pair joins the first layer of a stripe to the layer before it (the previous stripe's last, or across a
+    periodic wrap): the agents of each stripe's first layer are tested against the stencil spans one layer back
+    (the first third of :func:`stencil_span`'s spans, where the slowest axis steps back)."""
+    ti.loop_config(serialize=True)
+    for j in range(n_stripes):
+        b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
+            p = load_vec(pos_sorted, s, dim)
+            c = load_cell(coords_sorted, s, dim)
+            for o in range(ti.static(span_count(layout, dim) // 3)):
+                lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+                begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
+                for k in range(begin, end):
+                    if k < s_lo or k >= s_hi:
+                        d = displacement(p, load_vec(pos_sorted, k, dim), box, metric)
+                        if d.norm_sqr() <= radius * radius:
+                            a = _root(parent, s)
+                            z = _root(parent, k)
+                            if a != z:
+                                _join(parent, size, a, z)
+
+
+@ti.kernel
+def _count_components(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
+    """result = (components, agents in the largest): the roots and their sizes."""
+    result[0] = 0
+    result[1] = 0
+    for s in range(n):
+        if parent[s] == s:
+            ti.atomic_add(result[0], 1)
+            ti.atomic_max(result[1], size[s])
+
+
+class LaneComponents:
+    """Scratch and results of the components a lane-wise pass finds on one grid (box, window or bounded layouts).
+
+    A model's kernel takes :meth:`stripes` and ``parent``, loops over stripes as this module describes, and then
+    :meth:`finish` gives the component count and the largest component.
+    """
+
+    def __init__(self, grid: CellGrid, threads: int) -> None:
+        self.grid = grid
+        self.threads = max(1, threads)
+        self.parent = ti.ndarray(ti.i32, grid.n)
+        self.size = ti.ndarray(ti.i32, grid.n)
+        self.result = np.zeros(2, dtype=np.int32)
+
+    def stripes(self) -> tuple[int, int, int]:
+        """``(n_stripes, layers, layer_buckets)`` for the grid's current layout."""
+        g = self.grid.geometry
+        layer_buckets = g.cells_per_side ** (g.dim - 1)
+        layers = g.total_buckets // layer_buckets
+        n_stripes = max(1, min(STRIPES_PER_THREAD * self.threads, layers // MIN_STRIPE_LAYERS))
+        return n_stripes, layers, layer_buckets
+
+    def finish(self, radius: float, box: float, metric: int) -> tuple[int, int]:
+        """Join the pairs across stripes and count: ``(components, agents in the largest)``. `metric` is the
+        boundary code whose displacement measures distances (the periodic box's for a window grid)."""
+        grid = self.grid
+        g = grid.geometry
+        n_stripes, layers, layer_buckets = self.stripes()
+        if n_stripes > 1:
+            _cross_stripes(n_stripes, layers, layer_buckets, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
+                           metric, g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent,
+                           self.size)
+        _count_components(grid.n, self.parent, self.size, self.result)
+        return int(self.result[0]), int(self.result[1])
+
+
+def degree_stats(counts: np.ndarray) -> tuple[float, float]:
+    """Mean and max neighbour count from the pass's per-agent counts (itself included, floats)."""
+    total = float(counts.sum(dtype=np.float64))
+    return total / len(counts) - 1.0, float(counts.max()) - 1.0
+
