@@ -115,11 +115,11 @@ def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Seque
 
 def gnf_levels(n: int, dim: int, box: float) -> list[int]:
     """Boxes per side M of the number fluctuations, coarsest first: 4, 8, ... while a box holds about one agent or
-    more on average, at most GNF_FINEST[dim]; empty when even 4 per side would hold less."""
-    finest = min(GNF_FINEST[dim], box / (box**dim / n) ** (1 / dim))
+    more on average (n / M^dim >= 1, in integers: any box size, 1e300 included), at most GNF_FINEST[dim]; empty when
+    even 4 per side would hold less. The levels depend on n and dim only (`box` is kept for the callers)."""
     levels = []
     m = GNF_COARSEST
-    while m <= finest:
+    while m <= GNF_FINEST[dim] and m**dim <= n:
         levels.append(m)
         m *= 2
     return levels
