@@ -38,6 +38,8 @@ def test_resumed_run_is_bit_identical(make_sim, tmp_path, extra):
 @pytest.mark.parametrize("model,params", [
     ("formation", {"n": 12}),
     ("vicsek", {"n": 300, "box": 12.0}),
+    ("vicsek", {"n": 300, "box": 12.0, "neighbours": "topological", "noise_type": "vectorial"}),
+    ("vicsek", {"n": 300, "box": 5.0, "dim": 3, "neighbours": "topological"}),
     ("potential", {"n": 200, "box": 12.0}),
     ("potential", {"n": 60, "box": 8.0, "topology": "fixed", "graph": "tree"}),
     ("adaptive", {"n": 300, "box": 5.0, "noise": 0.3}),

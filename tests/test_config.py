@@ -58,6 +58,10 @@ def test_defaults() -> None:
         "max_turn_deg": 360.0,
         "async_bound": 1,
         "leader": {"enabled": False, "heading_deg": 0.0},
+        "noise_type": "angular",
+        "dim": 2,
+        "neighbours": "metric",
+        "k": 6,
         "wrap_headings": True,
     }
     assert config.engine.model_dump() == {"arch": "cpu", "threads": 0, "precision": "f32"}
@@ -223,7 +227,7 @@ def test_laplacian_with_large_g_is_valid() -> None:
 @pytest.mark.parametrize(
     ("overrides", "expected"),
     [
-        (["params.nosie=1"], "params.nosie: unknown key; allowed: async_bound, boundary, box, g, leader,"),
+        (["params.nosie=1"], "params.nosie: unknown key; allowed: async_bound, boundary, box, dim, g, k, leader,"),
         (["colour=1"], "colour: unknown key; allowed: engine, log, model, params, seed, steps"),
         (["engine.gpu=1"], "engine.gpu: unknown key; allowed: arch, precision, threads"),
         (["params.leader.color=1"], "params.leader.color: unknown key; allowed: enabled, heading_deg"),
@@ -263,6 +267,25 @@ def test_laplacian_with_large_g_is_valid() -> None:
         (
             ["params.speed=200"],
             "params.speed: must be < params.box / 2 (= 111.8) for boundary 'periodic', got 200",
+        ),
+        (
+            ["params.noise_type=vectorial", "params.rule=average"],
+            "params.noise_type: must be 'angular' for rule 'average' (vectorial noise joins the sum of heading",
+        ),
+        (["params.noise_type=scalar"], "params.noise_type: must be one of angular, vectorial, got 'scalar'"),
+        (["params.dim=1"], "params.dim: must be one of 2, 3, got 1"),
+        (["params.dim=3", "params.rule=relative"], "params.rule: must be 'vector' in 3D (the other rules are"),
+        (["params.dim=3", "params.async_bound=2"], "params.async_bound: must be 1 in 3D (asynchrony is 2D only)"),
+        (["params.dim=3", "params.leader.enabled=true"], "params.leader.enabled: must be off in 3D"),
+        (["params.neighbours=knn"], "params.neighbours: must be one of metric, topological, got 'knn'"),
+        (["params.k=65"], "params.k: must be between 1 and 32, got 65"),
+        (
+            ["params.neighbours=topological", "params.n=6"],
+            "params.k: must be < params.n (= 6) for topological neighbours, got 6",
+        ),
+        (
+            ["params.neighbours=topological", "params.async_bound=4"],
+            "params.async_bound: must be 1 with topological neighbours",
         ),
     ],
 )

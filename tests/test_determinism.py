@@ -30,6 +30,8 @@ VICSEK = {"n": 4000, "box": 40.0, "radius": 1.0, "speed": 0.5, "noise": 0.5, "ru
 @pytest.mark.parametrize("model,params", [
     ("vicsek", {**VICSEK, "boundary": "periodic"}),
     ("vicsek", {**VICSEK, "boundary": "open", "async_bound": 4}),
+    ("vicsek", {**VICSEK, "boundary": "reflecting", "neighbours": "topological", "noise_type": "vectorial"}),
+    ("vicsek", {**VICSEK, "box": 11.7, "dim": 3, "noise_type": "vectorial"}),
     ("potential", {"n": 3000, "box": 90.0}),
     ("adaptive", {"n": 3000, "box": 16.0, "noise": 0.3, "dim": 3}),
     ("formation", {"n": 3000, "world": 400.0, "init_length": 150.0, "init_width": 150.0, "fail_prob": 0.2,

@@ -59,6 +59,19 @@ def test_vicsek_batch_with_leader_and_asynchrony(engine):
     assert_batch_matches_lone_runs(cfg, engine)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("boundary", ["periodic", "open"])
+def test_vicsek_batch_topological_vectorial(engine, boundary, dim):
+    cfg = config("vicsek", n=30, box=4.0 if dim == 2 else 2.5, noise=0.5, boundary=boundary, neighbours="topological",
+                 k=6, noise_type="vectorial", dim=dim)
+    assert_batch_matches_lone_runs(cfg, engine)
+
+
+def test_vicsek_3d_batch_equals_lone_runs(engine):
+    cfg = config("vicsek", n=30, box=2.5, noise=0.8, boundary="reflecting", dim=3, max_turn_deg=40.0)
+    assert_batch_matches_lone_runs(cfg, engine)
+
+
 @pytest.mark.parametrize("boundary", ["open", "periodic"])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_adaptive_batch_equals_lone_runs(engine, boundary, dim):

@@ -83,15 +83,19 @@ def test_step_matches_reference_variants(engine, case):
 @pytest.mark.parametrize("boundary", BOUNDARIES)
 @pytest.mark.parametrize("rule", RULES)
 def test_trajectory_matches_reference(engine, rule, boundary):
-    cfg = vicsek_config(rule, boundary, n=300)
+    free_run(vicsek_config(rule, boundary, n=300), engine, steps=150)
+
+
+def free_run(cfg, engine, steps):
+    """Kernel and reference run freely from the same initial state; within 1e-8 after `steps` steps."""
     model = Vicsek(cfg.params, cfg.seed, engine)
     x, theta = model.state()["x"], model.state()["theta"]
-    model.advance(150)
-    for t in range(150):
+    model.advance(steps)
+    for t in range(steps):
         x, theta = ref.vicsek_step(x, theta, t, cfg.params, cfg.seed)
     got = model.state()
     assert heading_gap(got["theta"], theta) < 1e-8
-    assert position_gap(got["x"], x, boundary, cfg.params.box) < 1e-8
+    assert position_gap(got["x"], x, cfg.params.boundary, cfg.params.box) < 1e-8
 
 
 @pytest.mark.parametrize("boundary", BOUNDARIES)
@@ -115,6 +119,10 @@ def test_metrics_match_reference(engine, boundary, bound):
         assert got[name] == pytest.approx(expected[name], abs=1e-12), name
     for name in ("polarization", "leader_error", "e_d", "e_theta", "de_theta", "updated"):
         assert got[name] == pytest.approx(expected[name], rel=1e-5, abs=1e-5), name
+    observables = [name for name in got if name.startswith(("gnf_", "band_"))]
+    assert len(observables) == (0 if boundary == "open" else 6)  # exponent, std in 4, 8, 16 boxes a side, bands
+    for name in observables:  # integer box and slab counts: the same agents in the same boxes
+        assert got[name] == pytest.approx(expected[name], rel=1e-12), name
     assert math.cos(got["mean_heading"] - expected["mean_heading"]) == pytest.approx(1.0, abs=1e-8)
 
 
@@ -183,6 +191,78 @@ def test_b1_is_the_synchronous_run(engine, boundary):
         assert position_gap(a["x"], b["x"], boundary, cfg.params.box) < TOL
 
 
+# ------------------------------------------------------------------------------------------------------------
+# Vectorial noise and topological neighbours (issue 29).
+
+VECTORIAL = {"params.noise_type": "vectorial", "params.noise": 0.4}
+
+
+@pytest.mark.parametrize("boundary,variant", [
+    *((b, "synchronous") for b in BOUNDARIES),  # lane-wise (box) and general (open space) kernels
+    ("reflecting", "turn_limit_leader"), ("periodic", "asynchronous"), ("open", "asynchronous"),
+])
+def test_vectorial_noise_matches_reference(engine, boundary, variant):
+    """Gregoire-Chate noise: a unit vector of weight eta (1 + n_i) in the vector rule's sum, in the lane-wise, the
+    general (open space) and the asynchronous kernels."""
+    extra = {"synchronous": {}, "asynchronous": {"params.async_bound": 3},
+             "turn_limit_leader": {"params.max_turn_deg": 20.0, "params.leader.enabled": True}}[variant]
+    cfg = vicsek_config("vector", boundary, n=300, **VECTORIAL, **extra)
+    if variant == "asynchronous":
+        async_step_by_step(cfg, engine, steps=15)
+    else:
+        step_by_step(cfg, engine, steps=20)
+
+
+def test_vectorial_noise_is_the_documented_draw(engine):
+    """One agent alone: its new heading is the direction of its own unit vector plus eta times the noise vector at
+    angle 2 pi u (u of Stream.NOISE), exactly as docs/models/vicsek.md states it."""
+    from tflock.rng import Stream, uniform_np
+
+    cfg = vicsek_config("vector", "periodic", n=1, box=5.0, **{"params.noise_type": "vectorial",
+                                                              "params.noise": 0.7, "params.speed": 0.0})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    theta = float(model.state()["theta"][0])
+    model.advance(1)
+    psi = 2 * math.pi * uniform_np(cfg.seed, 0, np.arange(1), Stream.NOISE)[0]
+    expected = math.atan2(math.sin(theta) + 0.7 * math.sin(psi), math.cos(theta) + 0.7 * math.cos(psi))
+    assert heading_gap(model.state()["theta"], np.array([expected])) < TOL
+
+
+TOPOLOGICAL = {"params.neighbours": "topological", "params.k": 6}
+
+
+@pytest.mark.parametrize("rule,boundary", [*((r, b) for r in RULES for b in ("periodic", "open")),
+                                           ("vector", "reflecting"), ("average", "reflecting")])
+def test_topological_step_matches_reference(engine, rule, boundary):
+    step_by_step(vicsek_config(rule, boundary, n=300, **TOPOLOGICAL), engine, steps=20)
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_topological_with_vectorial_noise_leader_and_turn_limit(engine, boundary):
+    cfg = vicsek_config("vector", boundary, n=300, **TOPOLOGICAL, **VECTORIAL,
+                        **{"params.leader.enabled": True, "params.max_turn_deg": 30.0})
+    step_by_step(cfg, engine, steps=20)
+
+
+@pytest.mark.skipif(not F64, reason="long free-running horizons are compared at f64 only (f32 drifts chaotically)")
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_topological_trajectory_matches_reference(engine, boundary):
+    free_run(vicsek_config("vector", boundary, n=300, **TOPOLOGICAL), engine, steps=100)
+
+
+def test_topological_neighbours_ignore_the_radius(engine):
+    """With topological neighbours the interaction does not depend on R: two runs with R = 0.5 and R = 3 give the
+    same trajectory (R only sizes the cells' lower bound and the R-graph metrics)."""
+    runs = []
+    for radius in (0.5, 3.0):
+        cfg = vicsek_config("vector", "periodic", n=300, **TOPOLOGICAL, **{"params.radius": radius})
+        model = Vicsek(cfg.params, cfg.seed, engine)
+        model.advance(10)
+        runs.append(model.state())
+    assert heading_gap(runs[0]["theta"], runs[1]["theta"]) < TOL
+    assert position_gap(runs[0]["x"], runs[1]["x"], "periodic", 12.0) < TOL
+
+
 @pytest.mark.parametrize("bound", [1, 4])
 @pytest.mark.parametrize("rule", ["average", "vector"])
 def test_real_headings_match_reference(engine, rule, bound):
@@ -211,4 +291,22 @@ def test_real_headings_match_reference(engine, rule, bound):
         got = model.state()["theta"].astype(np.float64)
         assert np.abs(got - state["theta"]).max() < TOL, f"theta differs at step {t}"
         outside += int(((got < 0) | (got >= 2 * math.pi)).sum())
+    assert outside > 0  # headings left [0, 2 pi): nothing wrapped them
+
+
+def test_real_headings_with_topological_neighbours(engine):
+    """wrap_headings = false with topological neighbours (the topological step's own update): headings stay real
+    numbers, compared without wrapping."""
+    cfg = vicsek_config("average", "reflecting", n=250, **TOPOLOGICAL, **{"params.wrap_headings": False})
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    state = model.state()
+    outside = 0
+    for t in range(30):
+        expected_x, expected_theta = ref.vicsek_step(state["x"], state["theta"], t, cfg.params, cfg.seed)
+        model.set_state(state, t)
+        model.advance(1)
+        got = model.state()["theta"].astype(np.float64)
+        assert np.abs(got - expected_theta).max() < TOL, f"theta differs at step {t}"
+        outside += int(((got < 0) | (got >= 2 * math.pi)).sum())
+        state = {"x": expected_x, "theta": expected_theta}
     assert outside > 0  # headings left [0, 2 pi): nothing wrapped them

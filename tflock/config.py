@@ -197,7 +197,8 @@ class VicsekParams(BaseModel):
         0.5,
         ge=0,
         le=TWO_PI,
-        description="noise eta in radians, in [0, 2 pi]; each step adds uniform noise in [-eta/2, eta/2]",
+        description="noise eta in [0, 2 pi]: angular noise adds uniform noise in [-eta/2, eta/2] radians each step "
+        "(3D: a direction uniform in the cap of half-angle eta/2); vectorial noise uses eta as its weight",
     )
     boundary: Literal["periodic", "reflecting", "open"] = Field(
         "periodic", description="boundary: periodic, reflecting (mirror walls) or open (unbounded)"
@@ -226,6 +227,21 @@ class VicsekParams(BaseModel):
         "in any B steps and sees neighbours up to B - 1 steps late; 1 = synchronous updates",
     )
     leader: LeaderConfig = Field(default_factory=LeaderConfig, description="optional leader (agent 0)")
+    noise_type: Literal["angular", "vectorial"] = Field(
+        "angular",
+        description="angular: the heading turns by uniform noise in [-eta/2, eta/2] (Vicsek 1995); vectorial: a "
+        "random unit vector of weight eta times the neighbour count (itself included) joins the sum of headings "
+        "before it is normalised (Gregoire-Chate), eta then a weight, not radians; vector rule only",
+    )
+    dim: Literal[2, 3] = Field(
+        2, description="space dimension: 2, or 3 for the vector rule (headings are unit vectors on the sphere)"
+    )
+    neighbours: Literal["metric", "topological"] = Field(
+        "metric",
+        description="metric: the agents within radius R; topological: the k nearest agents (Ballerini et al. "
+        "2008), ties broken by agent id; synchronous updates only",
+    )
+    k: Int = Field(6, ge=1, le=32, description="neighbours of each agent when topological, in [1, 32], < n")
     wrap_headings: bool = Field(
         True,
         description="wrap headings into [0, 2 pi) after every update and wall reflection (Samiloglu section 3); "
@@ -234,6 +250,22 @@ class VicsekParams(BaseModel):
 
     @model_validator(mode="after")
     def _cross_field_rules(self) -> VicsekParams:
+        if self.noise_type == "vectorial" and self.rule != "vector":
+            raise _rule_error(f"must be 'angular' for rule '{self.rule}' (vectorial noise joins the sum of heading "
+                              "vectors of rule 'vector')", self.noise_type, key="noise_type")
+        if self.dim == 3:
+            for key, value, allowed, text in (
+                    ("rule", self.rule, "vector", "'vector' in 3D (the other rules are defined on angles only)"),
+                    ("async_bound", self.async_bound, 1, "1 in 3D (asynchrony is 2D only)"),
+                    ("leader", self.leader.enabled, False, "off in 3D (a leader's heading is an angle in the plane)")):
+                if value != allowed:
+                    raise _rule_error(f"must be {text}", value, key=f"{key}.enabled" if key == "leader" else key)
+        if self.neighbours == "topological":
+            if self.async_bound != 1:
+                raise _rule_error("must be 1 with topological neighbours (delayed views are defined for metric ones)",
+                                  self.async_bound, key="async_bound")
+            if self.k >= self.n:
+                raise _rule_error(f"must be < params.n (= {self.n}) for topological neighbours", self.k, key="k")
         if self.rule == "laplacian" and (self.g is None or self.g <= self.n):
             raise _rule_error(
                 f"must be > params.n (= {self.n}) for rule 'laplacian' (Jadbabaie eq. 18)", self.g, key="g"

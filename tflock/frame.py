@@ -95,6 +95,7 @@ class Frame:
     leader: np.ndarray | None = None  # (dim,) leader position, drawn bigger in white at world/leader
     leader_direction: np.ndarray | None = None  # (dim,) leader heading; drawn as an arrow when given
     markers: list[Marker] = field(default_factory=list)  # other objects, each at world/<name> (same set each frame)
+    profiles: dict[str, np.ndarray] = field(default_factory=dict)  # 1D series of all agents, e.g. a density profile
     ids: np.ndarray | None = None  # (M,) agent ids of the rows, shown when hovering an agent
     fields: list[FieldImage] = field(default_factory=list)  # the coarse-grained field of all agents (tflock.field)
 

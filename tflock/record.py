@@ -16,6 +16,8 @@ default view (docs/recordings.md shows and explains it):
 * ``legend``: what the colours mean (heading wheel, speed ramp or categories; the field's colours);
 * ``metrics/<name>``: one Scalars series per metric, plotted in groups (per-agent series in one plot, min / mean /
   max together, energies together; series constant over the run in one plot of their own);
+* ``profiles/<name>``: a BarChart per drawn frame for each 1D profile the model declares (e.g. the density along
+  the mean heading, which shows travelling bands), each in a tab of its own;
 * ``about`` (what is drawn, every metric's description), ``config`` (the resolved TOML) and ``meta`` (static);
 * a default blueprint: the world view largest, the legend beside it, the plots and documents in tabs below it,
   side panels collapsed.
@@ -83,6 +85,7 @@ ABOUT = "about"
 CONFIG = "config"
 META = "meta"
 METRICS = "metrics"
+PROFILES = "profiles"
 
 SPAWN_PORT = 9876
 LEADER_COLOR = (255, 255, 255)
@@ -226,6 +229,7 @@ class Recorder:
         config_toml: str,
         world: WorldSpec,
         metrics: Mapping[str, str],
+        profiles: Mapping[str, str] | None = None,
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,
@@ -253,6 +257,7 @@ class Recorder:
         self.config_toml = config_toml
         self.world = world
         self.metrics = dict(metrics)
+        self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
         self.legend = legend
@@ -299,7 +304,7 @@ class Recorder:
     def blueprint(self, constant: tuple[str, ...] = ()) -> rrb.Blueprint:
         """The default layout: the world view largest on the left; on the right the colour legend (and in 3D the
         field's projections) above tabs of the metric plots (the `constant` series in one plot of their own), the
-        about document and the config. Side panels collapsed, the time panel a single bar."""
+        profiles' bar charts, the about document and the config. Side panels collapsed, the time panel a single bar."""
         world = self.world
         if world.dim == 2:
             bounds = None
@@ -318,7 +323,8 @@ class Recorder:
         plots = self._plots(constant)
         metrics = (rrb.Grid(*plots, grid_columns=2 if len(plots) > 4 else 1, name="metrics") if len(plots) > 1
                    else plots[0] if plots else None)
-        tabs = [v for v in (metrics, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
+        profiles = [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
+        tabs = [v for v in (metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
                             rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")) if v is not None]
         right: rrb.Container | rrb.View = rrb.Tabs(*tabs, active_tab=0)
         if top:
@@ -366,6 +372,8 @@ class Recorder:
             lines.append(f"- **trails**: the last {self.trail} positions of each drawn agent.")
         if self.legend is not None:
             lines.append(f"- **{self.legend.title}**: see the colours view.")
+        for name, description in self.profiles.items():
+            lines.append(f"- **{name}** (bar chart, a tab of its own): {description}")
         lines += ["", "# Metrics", "", "| plot | series | metric | description |", "|---|---|---|---|"]
         for group, members in metric_groups(list(self.metrics)).items():
             for name, short in members:
@@ -541,6 +549,8 @@ class Recorder:
             self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
         for image in frame.fields:
             self._log_field(image)
+        for name, values in frame.profiles.items():
+            rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
 
     def _log_ids(self, ids: np.ndarray | None, m: int) -> None:
         """The agent id of each row as its label (shown when hovering it), logged when the drawn agents change."""

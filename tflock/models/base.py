@@ -46,6 +46,8 @@ class Model(ABC):
                                         "vel": "velocity", "phi": "velocity"}
     #: metric name -> one-line description, in the order the metrics table uses
     metric_descriptions: Mapping[str, str]
+    #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
+    profile_descriptions: Mapping[str, str] = {}
     #: what the colours of the drawn agents mean (the recorder draws it beside the world view)
     color_legend: ColorLegend = HEADING_LEGEND
     _edge_finder: DrawnEdges | None = None

@@ -2,7 +2,9 @@
 
 One synchronous step t -> t+1 for every agent i:
 
-1. neighbours N_i(t) = {j != i : |x_j - x_i| <= R} from the positions x(t) (minimum image when periodic);
+1. neighbours N_i(t) = {j != i : |x_j - x_i| <= R} from the positions x(t) (minimum image when periodic), or
+   with ``neighbours = "topological"`` the k agents nearest to i (Ballerini et al. 2008; ties by the smaller id,
+   :mod:`tflock.topological`);
 2. desired heading by `rule`:
    - ``vector``: Vicsek et al. 1995; Samiloglu-Gazi-Koku strategy 3, eq. (6a): atan2 of the summed unit vectors
      of N_i and i;
@@ -15,14 +17,18 @@ One synchronous step t -> t+1 for every agent i:
    [-pi, pi) for ``vector`` and ``relative``); alpha = 360 degrees is no limit for any rule;
 4. noise xi ~ U[-eta/2, eta/2] (Vicsek 1995), then headings are wrapped into [0, 2 pi) (003's convention; with
    ``wrap_headings`` false they stay real numbers, after a wall reflection too: the other reading of 003, which
-   changes only the rules that use angle values themselves, ``average`` and ``laplacian``);
+   changes only the rules that use angle values themselves, ``average`` and ``laplacian``); with
+   ``noise_type = "vectorial"`` (Gregoire & Chate 2004; Chate et al. 2008, the vector rule only) there is no xi:
+   instead a unit vector at angle 2 pi u, weighted by eta (1 + n_i), joins the sum of step 2 before its angle is
+   taken, so the noise acts on what the agent perceives rather than on its decision;
 5. move x(t+1) = x(t) + v0 (cos, sin) theta_i(t+1) and apply the boundary (reflecting: mirror the position
    and reflect the heading, 003 section 5.2).
 
 Leader (Jadbabaie section 3, eq. 22): agent 0 keeps its heading theta0 and is never updated by the rule or
 the noise (only a reflecting wall turns it); followers count it as a neighbour when within R.
-Noise for agent i at step t is ``uniform(seed, t, i, Stream.NOISE)``; initial positions are uniform in the box
-and headings uniform in [0, 2 pi), from streams INIT_X, INIT_Y, INIT_HEADING at step 0.
+Noise for agent i at step t comes from ``u = uniform(seed, t, i, Stream.NOISE)`` (both noise types); initial
+positions are uniform in the box and headings uniform in [0, 2 pi), from streams INIT_X, INIT_Y, INIT_HEADING at
+step 0. ``dim = 3`` builds :class:`tflock.models.vicsek3d.Vicsek3D` instead.
 """
 
 
@@ -72,6 +78,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.observables import TransitionObservables
 from tflock.reference import wrap_pi as wrap_pi_np
 from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, replica_key, uniform_np, uniform_ti
 from tflock.space import (
@@ -86,6 +93,7 @@ from tflock.space import (
     wrap_two_pi,
 )
 from tflock.taichi_host import host_view
+from tflock.topological import cell_side, nearest
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
 #: arithmetic differently at each vector width (8 and 16 gave headings 1 ulp apart on an AVX2 host), and the
@@ -93,6 +101,8 @@ from tflock.taichi_host import host_view
 UPDATE_WIDTH = 8
 RULES = {"vector": 0, "average": 1, "relative": 2, "laplacian": 3}
 VECTOR, AVERAGE, RELATIVE, LAPLACIAN = 0, 1, 2, 3
+#: what :func:`_neighbour_sums` computes for the vector rule with vectorial noise: the vector sums and the count
+VECTOR_COUNTED = 4
 TWO_PI = 2 * math.pi
 
 
@@ -111,7 +121,8 @@ def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
 def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float, speed: float, noise: float,
           box: float, max_turn: float, inv_g: float, bound: ti.i32,
           rule: ti.template(), boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
-          wrap: ti.template(), nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+          vectorial: ti.template(), wrap: ti.template(), nc: ti.i32, n_buckets: ti.i32, start: ti.types.ndarray(),
+          mixed: ti.types.ndarray(),
           order: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
           coords_sorted: ti.types.ndarray(),
           payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
@@ -182,6 +193,13 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                                 else:
                                     acc_a += th_j
                                 count += 1.0
+            u = uniform_ti(key, t, local, Stream.NOISE)
+            xi = noise * (u - 0.5)
+            if ti.static(vectorial):  # Gregoire-Chate: a unit vector of weight eta (1 + n_i) joins the sum
+                sin_psi, cos_psi = sin_cos(TWO_PI * u)
+                acc_a += noise * (1.0 + count) * cos_psi
+                acc_b += noise * (1.0 + count) * sin_psi
+                xi = 0.0
             phi = 0.0  # desired turn, 003 eqs. (8)-(10)
             if ti.static(rule == VECTOR):
                 phi = wrap_pi(atan2(acc_b + payload[1, s], acc_a + payload[0, s]) - th_i)
@@ -191,7 +209,6 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
                 phi = acc_a / (1.0 + count)
             else:
                 phi = inv_g * (acc_a - count * th_i)
-            xi = noise * (uniform_ti(key, t, local, Stream.NOISE) - 0.5)
             new = th_i + ti.math.clamp(phi, -max_turn, max_turn) + xi
             if ti.static(wrap):
                 new = wrap_two_pi(new)
@@ -251,9 +268,11 @@ def _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box, pos_sorted
         dx = displacement(px, xk, box, metric)
         dy = displacement(py, pos_sorted[1, k], box, metric)
         near = dx * dx + dy * dy <= r2
-        if ti.static(rule == VECTOR):
+        if ti.static(rule == VECTOR or rule == VECTOR_COUNTED):
             acc_a += ti.select(near, payload[0, k], 0.0)
             acc_b += ti.select(near, payload[1, k], 0.0)
+            if ti.static(rule == VECTOR_COUNTED):
+                count += ti.select(near, 1.0, 0.0)
         else:
             if ti.static(rule == RELATIVE):
                 acc_a += ti.select(near, wrap_pi(payload[2, k] - th), 0.0)
@@ -268,7 +287,8 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
                     boundary: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
                     pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(), sums: ti.types.ndarray()):
     """Per agent (cell order), over N_i and i itself: the rule's sums (``vector``: sum cos, sum sin; ``relative``:
-    sum wrap(theta_j - theta_i); others: sum theta_j) and, except for ``vector``, the count 1 + n_i."""
+    sum wrap(theta_j - theta_i); others: sum theta_j) and, except for ``vector``, the count 1 + n_i
+    (``VECTOR_COUNTED``: the vector rule's sums and the count)."""
     for b in range(total_buckets):
         r2 = radius * radius
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
@@ -299,6 +319,32 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
                     sums[2, i0 + k] = count[k]
 
 
+@ti.kernel
+def _list_sums(n: ti.i32, k: ti.template(), rule: ti.template(), nbr: ti.types.ndarray(),
+               payload: ti.types.ndarray(), sums: ti.types.ndarray()):
+    """The sums of :func:`_neighbour_sums`, count included, over each agent and the k neighbours that
+    ``nbr`` lists (:func:`tflock.topological.nearest`: grid slots, nearest first)."""
+    for s in range(n):
+        th = payload[2, s]
+        acc_a = payload[0, s]
+        acc_b = payload[1, s]
+        if ti.static(rule != VECTOR):
+            acc_a = ti.select(rule == RELATIVE, 0.0, th)
+            acc_b = 0.0
+        for e in ti.static(range(k)):
+            o = nbr[e, s]
+            if ti.static(rule == VECTOR):
+                acc_a += payload[0, o]
+                acc_b += payload[1, o]
+            elif ti.static(rule == RELATIVE):
+                acc_a += wrap_pi(payload[2, o] - th)
+            else:
+                acc_a += payload[2, o]
+        sums[0, s] = acc_a
+        sums[1, s] = acc_b
+        sums[2, s] = 1.0 + k
+
+
 PLAIN, BEFORE, BLOCK = 0, 1, 2  # candidates of a stripe's block (see _neighbour_sums_graph)
 
 
@@ -318,7 +364,7 @@ def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, label, other,
         dx = displacement(px, xk, box, metric)
         dy = displacement(py, pos_sorted[1, k], box, metric)
         near = dx * dx + dy * dy <= r2
-        if ti.static(rule == VECTOR):
+        if ti.static(rule == VECTOR or rule == VECTOR_COUNTED):
             acc_a += ti.select(near, payload[0, k], 0.0)
             acc_b += ti.select(near, payload[1, k], 0.0)
         elif ti.static(rule == RELATIVE):
@@ -419,7 +465,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
 @ti.func
 def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
                   rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
-                  wrap: ti.template(),
+                  vectorial: ti.template(), wrap: ti.template(),
                   id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
                   pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
                   turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
@@ -431,6 +477,18 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
     acc_a = ti.Vector([sums[0, i0 + k] for k in ti.static(range(width))])
     acc_b = ti.Vector([sums[1, i0 + k] for k in ti.static(range(width))])
     count = ti.Vector([sums[2, i0 + k] for k in ti.static(range(width))])
+    key = ti.Vector([seed] * width, dt=ti.u32)
+    local = i
+    if ti.static(batched):
+        for k in ti.static(range(width)):
+            key[k], local[k] = replica_key(seed, i[k], per_replica)
+    u = ti.Vector([uniform_ti(key[k], t, local[k], Stream.NOISE) for k in ti.static(range(width))])
+    xi = noise * (u - 0.5)
+    if ti.static(vectorial):  # Gregoire-Chate: a unit vector of weight eta (1 + n_i) joins the sum
+        sin_psi, cos_psi = sin_cos(TWO_PI * u)
+        acc_a += noise * count * cos_psi
+        acc_b += noise * count * sin_psi
+        xi *= 0.0
     phi = th * 0.0  # desired turn, 003 eqs. (8)-(10)
     if ti.static(rule == VECTOR):
         phi = wrap_pi(atan2(acc_b, acc_a) - th)
@@ -440,13 +498,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         phi = acc_a / count
     else:
         phi = inv_g * (acc_a - count * th)
-    key = ti.Vector([seed] * width, dt=ti.u32)
-    local = i
-    if ti.static(batched):
-        for k in ti.static(range(width)):
-            key[k], local[k] = replica_key(seed, i[k], per_replica)
-    u = ti.Vector([uniform_ti(key[k], t, local[k], Stream.NOISE) for k in ti.static(range(width))])
-    new = th + ti.math.clamp(phi, -max_turn, max_turn) + noise * (u - 0.5)
+    new = th + ti.math.clamp(phi, -max_turn, max_turn) + xi
     if ti.static(wrap):
         new = wrap_two_pi(new)
     update = local >= 0  # synchronous: every agent updates
@@ -459,7 +511,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
     if ti.static(boundary == PERIODIC):
         qx = wrap_periodic(qx, box)
         qy = wrap_periodic(qy, box)
-    else:
+    elif ti.static(boundary == REFLECTING):
         qx, flip_x = reflect(qx, box)
         qy, flip_y = reflect(qy, box)
         new = ti.select(flip_x == 1, math.pi - new, new)
@@ -492,7 +544,8 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
 @ti.kernel
 def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
             max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
-            batched: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+            batched: ti.template(), vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
+            pos_sorted: ti.types.ndarray(),
             payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
             theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
             updated: ti.types.ndarray(), draw: ti.i32, bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
@@ -501,12 +554,12 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // UPDATE_WIDTH):
         _update_lanes(b * UPDATE_WIDTH, UPDATE_WIDTH, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
-                      boundary, leader, batched, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids,
-                      turn, updated, draw, bits, word_rank, drawn)
+                      boundary, leader, batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta,
+                      trig, ids, turn, updated, draw, bits, word_rank, drawn)
     for s in range(n // UPDATE_WIDTH * UPDATE_WIDTH, n):
         _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                      batched, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw,
-                      bits, word_rank, drawn)
+                      batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn,
+                      updated, draw, bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -580,6 +633,14 @@ class Vicsek(GridModel):
     def can_batch(cls, params: VicsekParams) -> bool:
         return params.n <= EXACT_PAIRS_MAX
 
+    def __new__(cls, params: VicsekParams, *args, **kwargs):
+        """``params.dim = 3`` builds the 3D model, :class:`tflock.models.vicsek3d.Vicsek3D`."""
+        if params.dim == 3:
+            from tflock.models.vicsek3d import Vicsek3D
+
+            return Vicsek3D(params, *args, **kwargs)
+        return super().__new__(cls)
+
     def __init__(self, params: VicsekParams, seed: int, engine: EngineInfo, force_async: bool = False,
                  replicas: int = 1) -> None:
         """`force_async` runs the asynchronous kernel even for B = 1 (it must reproduce the synchronous one)."""
@@ -606,6 +667,9 @@ class Vicsek(GridModel):
         }
         if params.leader.enabled:
             self.metric_descriptions["leader_error"] = "mean |heading - leader heading| of followers (rad)"
+        self.observables = TransitionObservables(params.n, 2, params.boundary, params.box, params.radius, replicas)
+        self.metric_descriptions.update(self.observables.descriptions)
+        self.profile_descriptions = self.observables.profile_descriptions
         self.asynchronous = force_async or params.async_bound > 1
         bound = params.async_bound
         ftype = ti.f32 if real == np.float32 else ti.f64
@@ -623,13 +687,22 @@ class Vicsek(GridModel):
         self.hist_pos = ti.ndarray(ftype, (ring, 2, m))
         self.hist_theta = ti.ndarray(ftype, (ring, m))
         reach = params.radius + (bound - 1) * params.speed if self.asynchronous else params.radius
+        self.topological = params.neighbours == "topological"
+        if self.topological:  # cells sized for the k nearest, at least R for the R-graph metrics
+            reach = max(reach, cell_side(params.n, params.k, 2, params.box))
         self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real, replicas)
-        # the lane-wise synchronous step (CPU, box boundaries) keeps each agent's neighbour sums between its kernels
-        self.lane_wise = not self.asynchronous and params.boundary != "open" and engine.arch == "cpu"
-        m = n if self.lane_wise else 1
+        # the lane-wise synchronous step (CPU, box boundaries) keeps each agent's neighbour sums between its kernels;
+        # the topological step too (any arch and boundary), with each agent's k nearest (grid slots) and the rings
+        # each search visited
+        self.lane_wise = (not self.asynchronous and params.boundary != "open" and engine.arch == "cpu"
+                          and not self.topological)
+        m = n if self.lane_wise or self.topological else 1
         self.sums = ti.ndarray(ftype, (3, m))
         self.trig = ti.ndarray(ftype, (2, m))  # cos and sin of theta, element by element
-        # components: found by the lane-wise pass itself (lane_graph), else by the graph kernels of tflock.metrics
+        self.nbr = ti.ndarray(ti.i32, (params.k if self.topological else 1, m))
+        self.rings = ti.ndarray(ti.i32, m)
+        # components: found by the lane-wise pass itself (lane_graph; metric neighbours only, as lane_wise is), else
+        # by the graph kernels of tflock.metrics
         self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise and replicas == 1 else None
         self.graph = None if self.components is not None else NeighbourGraph(self.grid)
         self._grid_step = -1  # step whose positions the grid holds
@@ -647,7 +720,7 @@ class Vicsek(GridModel):
         theta = np.ascontiguousarray(state["theta"], dtype=real)
         self.pos.from_numpy(x)
         self.theta.from_numpy(theta)
-        if self.lane_wise:
+        if self.lane_wise or self.topological:
             cos_sin(self.n_total, self.theta, self.trig)
         self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
         self.turn.fill(0)
@@ -690,13 +763,16 @@ class Vicsek(GridModel):
         inv_g = 1.0 / p.g if p.rule == "laplacian" else 0.0
         for _ in range(steps):
             self._ensure_grid()
-            if self.lane_wise:
+            if self.topological:
+                self._topological_step(inv_g)
+            elif self.lane_wise:
                 self._lane_wise_step(inv_g)
             else:
                 _step(self.step_index, self.seed, self.n_total, p.n, p.radius, p.speed, p.noise, p.box,
                       math.radians(p.max_turn_deg), inv_g, p.async_bound,
                       RULES[p.rule], boundary_code(p.boundary), p.leader.enabled, self.asynchronous,
-                      p.wrap_headings, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed, self.grid.order,
+                      p.noise_type == "vectorial", p.wrap_headings, g.cells_per_side, g.n_buckets, self.grid.start,
+                      self.grid.mixed, self.grid.order,
                       self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.pos,
                       self.theta, self.ids, self.turn, self.updated, self.omega, self.hist_pos, self.hist_theta)
             self.step_index += 1
@@ -704,15 +780,30 @@ class Vicsek(GridModel):
     def _lane_wise_step(self, inv_g: float) -> None:
         p, grid = self.params, self.grid
         g, rule, boundary = grid.geometry, RULES[p.rule], boundary_code(p.boundary)
+        vectorial = p.noise_type == "vectorial"
         if self._summed != (self.step_index, grid.builds):  # not yet summed by metrics() for this state
             _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
-            _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start,
-                            grid.runs(), grid.pos_sorted, self.payload, self.sums)
+            _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, VECTOR_COUNTED if vectorial else rule,
+                            boundary, grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
-                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, p.wrap_headings, grid.id_sorted,
-                grid.pos_sorted,
+                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, vectorial, p.wrap_headings,
+                grid.id_sorted, grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
+
+    def _topological_step(self, inv_g: float) -> None:
+        """The synchronous step with the k nearest agents as neighbours: :func:`tflock.topological.nearest`, their
+        sums, then the lane-wise update."""
+        p, grid = self.params, self.grid
+        g, rule = grid.geometry, RULES[p.rule]
+        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        nearest(self.n_total, p.n, p.box, g.cell_size, g.cells_per_side, g.n_buckets, p.k, g.boundary, 2, grid.start,
+                grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.nbr, self.rings)
+        _list_sums(self.n_total, p.k, rule, self.nbr, self.payload, self.sums)
+        _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
+                inv_g, rule, g.boundary, p.leader.enabled, self.replicas > 1, p.noise_type == "vectorial",
+                p.wrap_headings, grid.id_sorted, grid.pos_sorted, self.payload, self.sums, self.pos, self.theta,
+                self.trig, self.ids, self.turn, self.updated, *self._draw_arguments(3, 2))
 
     def metrics(self) -> dict[str, float]:
         if self.replicas > 1:
@@ -734,6 +825,8 @@ class Vicsek(GridModel):
         out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
+        heading = np.array([[math.cos(out["mean_heading"]), math.sin(out["mean_heading"])]])
+        out.update({k: float(v[0]) for k, v in self.observables.compute(self.pos, self.ids, heading).items()})
         return {name: out[name] for name in self.metric_descriptions}
 
     def _lane_wise_metrics(self) -> dict[str, float]:
@@ -742,7 +835,8 @@ class Vicsek(GridModel):
         p, grid = self.params, self.grid
         g, boundary = grid.geometry, boundary_code(p.boundary)
         _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
-        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, RULES[p.rule], boundary,
+        rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
+        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
                               grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
                               self.components.parent, self.components.size)
         self._summed = (self.step_index, grid.builds)
@@ -775,6 +869,7 @@ class Vicsek(GridModel):
         if p.leader.enabled:
             gap = np.abs(wrap_pi_np(theta[:, 1:] - theta[:, :1])).sum(axis=1)
             out["leader_error"] = gap / (n - 1) if n > 1 else np.zeros(replicas)
+        out.update(self.observables.compute(self.pos, self.ids, np.stack([c, s], axis=1)))
         return {name: out[name] for name in self.metric_descriptions}
 
     def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
@@ -799,10 +894,12 @@ class Vicsek(GridModel):
             x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
-        if self.lane_wise:  # the step keeps cos and sin of every heading
+        if self.lane_wise or self.topological:  # the step keeps cos and sin of every heading
             fields = self._field_images(field_size, self.pos, self.trig, UNIT_VECTORS, grid)
         else:
             fields = self._field_images(field_size, self.pos, self.theta, ANGLES, grid)
+        heading = heading_order(self.theta, p.n)[1] if self.observables.enabled else 0.0
+        profiles = self.observables.frame_profiles(self.pos, self.ids, np.array([math.cos(heading), math.sin(heading)]))
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
@@ -813,6 +910,7 @@ class Vicsek(GridModel):
             leader_direction=leader_direction,
             ids=selected,
             fields=fields,
+            profiles=profiles,
         )
 
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from tflock.config import VicsekParams
+from tflock.reference.observables import transition_metrics_np
 from tflock.rng import Stream, bernoulli_np, hash_np, pair_hash_np, randint_np, uniform_np
 
 TWO_PI = 2 * math.pi
@@ -49,10 +50,46 @@ def adjacency(x: np.ndarray, radius: float, boundary: str, box: float) -> np.nda
     return a
 
 
-def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float, wrap: bool = True):
-    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading (a reflected
-    heading wrapped into [0, 2 pi) unless `wrap` is false)."""
-    x = x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1)
+def topological_adjacency(x: np.ndarray, k: int, boundary: str, box: float) -> np.ndarray:
+    """A[i, j] = j is one of the k agents nearest to i (j != i; Ballerini et al. 2008), distances by the boundary's
+    metric, ties broken by the smaller agent id; squared distances computed in the dtype of x, as the kernel does."""
+    d = displacements(x, boundary, box)
+    d2 = (d * d).sum(axis=2)
+    n = len(x)
+    ids = np.arange(n)
+    a = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        others = ids != i
+        order = np.lexsort((ids[others], d2[i, others]))  # by distance, then by id
+        a[i, ids[others][order[:k]]] = True
+    return a
+
+
+def neighbour_matrix(x: np.ndarray, params: VicsekParams) -> np.ndarray:
+    """The neighbours of every agent by ``params.neighbours``: metric (within R) or topological (k nearest)."""
+    if params.neighbours == "topological":
+        return topological_adjacency(x, params.k, params.boundary, params.box)
+    return adjacency(x, params.radius, params.boundary, params.box)
+
+
+def unit_noise(seed: int, t: int, n: int, dim: int, dtype: type) -> np.ndarray:
+    """Random unit vectors of the vectorial noise at step t, one per agent: at angle 2 pi u in 2D
+    (u from ``Stream.NOISE``); uniform on the sphere in 3D (z = 1 - 2u, azimuth 2 pi v from ``Stream.NOISE_2``)."""
+    ids = np.arange(n)
+    u = uniform_np(seed, t, ids, Stream.NOISE).astype(dtype)
+    if dim == 2:
+        psi = dtype(TWO_PI) * u
+        return np.stack([np.cos(psi), np.sin(psi)], axis=1)
+    z = 1 - 2 * u
+    azimuth = dtype(TWO_PI) * uniform_np(seed, t, ids, Stream.NOISE_2).astype(dtype)
+    r = np.sqrt(np.maximum(0, 1 - z * z))
+    return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], axis=1)
+
+
+def apply_boundary(x: np.ndarray, boundary: str, box: float) -> tuple[np.ndarray, np.ndarray]:
+    """Positions after a move, wrapped into [0, box) (periodic) or mirrored at the walls (reflecting), and the mask
+    of the mirrored coordinates (whose velocity component changes sign)."""
+    flip = np.zeros(x.shape, dtype=bool)
     if boundary == "periodic":
         x = x - box * np.floor(x / box)
         x = np.where((x >= box) | (x < 0), 0.0, x).astype(x.dtype)
@@ -60,19 +97,33 @@ def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: flo
         low, high = x < 0, x > box
         x = np.where(low, -x, np.where(high, 2 * box - x, x)).astype(x.dtype)
         flip = low | high
+    return x, flip
+
+
+def move(x: np.ndarray, theta: np.ndarray, speed: float, boundary: str, box: float, wrap: bool = True):
+    """Unit-speed move along theta, then the boundary: wrap (periodic) or mirror position and heading (a reflected
+    heading wrapped into [0, 2 pi) unless `wrap` is false)."""
+    x, flip = apply_boundary(x + speed * np.stack([np.cos(theta), np.sin(theta)], axis=1), boundary, box)
+    if boundary == "reflecting":
         theta = np.where(flip[:, 0], math.pi - theta, theta)
         theta = np.where(flip[:, 1], -theta, theta).astype(x.dtype)
         theta = wrap_two_pi(theta) if wrap else theta
     return x, theta
 
 
-def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: VicsekParams) -> np.ndarray:
+def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: VicsekParams, t: int = 0,
+                 seed: int = 0) -> np.ndarray:
     """phi_i of 003 eqs. (8)-(10) (Jadbabaie eqs. 2, 17): a[i, j] = 1 when j is a neighbour of i, seen[i, j] the
-    heading of j that i uses (theta_j, or theta_j(tau) with delays)."""
+    heading of j that i uses (theta_j, or theta_j(tau) with delays). With vectorial noise (Gregoire-Chate) the
+    unit vector of step t, weighted by eta (1 + n_i), joins the vector rule's sum."""
     count = a.sum(axis=1)
     if params.rule == "vector":  # 003 eq. (10)
         sx = (a * np.cos(seen)).sum(axis=1) + np.cos(theta)
         sy = (a * np.sin(seen)).sum(axis=1) + np.sin(theta)
+        if params.noise_type == "vectorial":
+            weight = theta.dtype.type(params.noise) * (1 + count)
+            xi = unit_noise(seed, t, len(theta), 2, theta.dtype.type)
+            sx, sy = sx + weight * xi[:, 0], sy + weight * xi[:, 1]
         return wrap_pi(np.arctan2(sy, sx) - theta)
     if params.rule == "average":  # 003 eq. (8), Jadbabaie eq. (2)
         return (theta + (a * seen).sum(axis=1)) / (1 + count) - theta
@@ -82,19 +133,22 @@ def desired_turn(theta: np.ndarray, a: np.ndarray, seen: np.ndarray, params: Vic
 
 
 def turn_and_noise(theta: np.ndarray, phi: np.ndarray, t: int, params: VicsekParams, seed: int) -> np.ndarray:
-    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2], headings wrapped into [0, 2 pi) (unless
-    ``params.wrap_headings`` is false)."""
+    """Turn limit (003 eq. 7a), uniform noise in [-eta/2, eta/2] (angular noise; vectorial noise is in phi),
+    headings wrapped into [0, 2 pi) (unless ``params.wrap_headings`` is false)."""
     alpha = math.radians(params.max_turn_deg)
-    xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
+    xi = 0.0
+    if params.noise_type == "angular":
+        xi = params.noise * (uniform_np(seed, t, np.arange(len(theta)), Stream.NOISE) - 0.5)
     new = (theta + np.clip(phi, -alpha, alpha) + xi).astype(theta.dtype)
     return wrap_two_pi(new) if params.wrap_headings else new
 
 
 def vicsek_step(x: np.ndarray, theta: np.ndarray, t: int, params: VicsekParams, seed: int):
-    """One synchronous step t -> t+1 of the Vicsek family (DESIGN.md 3.1); returns (x, theta) at t+1."""
-    a = adjacency(x, params.radius, params.boundary, params.box).astype(x.dtype)
+    """One synchronous step t -> t+1 of the Vicsek family in 2D (DESIGN.md 3.1), metric or topological
+    neighbours, angular or vectorial noise; returns (x, theta) at t+1."""
+    a = neighbour_matrix(x, params).astype(x.dtype)
     seen = np.broadcast_to(theta, a.shape)
-    new = turn_and_noise(theta, desired_turn(theta, a, seen, params), t, params, seed)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen, params, t, seed), t, params, seed)
     if params.leader.enabled:
         new[0] = theta[0]
     return move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
@@ -134,7 +188,7 @@ def vicsek_step_async(hist_x: np.ndarray, hist_theta: np.ndarray, omega: np.ndar
     r = x.dtype.type(params.radius)
     a = ((d * d).sum(axis=2) <= r * r).astype(x.dtype)
     np.fill_diagonal(a, 0)
-    new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params), t, params, seed)
+    new = turn_and_noise(theta, desired_turn(theta, a, seen_theta, params, t, seed), t, params, seed)
     new = np.where(update, new, theta).astype(theta.dtype)
     x_new, theta_new = move(x, new, params.speed, params.boundary, params.box, params.wrap_headings)
     hist_x, hist_theta = hist_x.copy(), hist_theta.copy()
@@ -214,4 +268,6 @@ def vicsek_metrics(x: np.ndarray, theta: np.ndarray, params: VicsekParams, previ
     if params.leader.enabled:
         th = theta.astype(np.float64)
         out["leader_error"] = float(np.abs(wrap_pi(th[1:] - th[0])).mean()) if len(th) > 1 else 0.0
+    direction = np.array([math.cos(mean_heading), math.sin(mean_heading)])
+    out.update(transition_metrics_np(x, direction, params.boundary, params.box, params.radius))
     return out

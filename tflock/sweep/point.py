@@ -17,6 +17,8 @@ __all__ = ["run_point", "summarise"]
 
 SUMMARIES = ("mean", "std")
 """Statistics of every metric over the second half of the run (the logged steps >= steps / 2)."""
+POOLED = "_pooled"
+"""Suffix of the columns computed over the second halves of all replicas of a point (the same in each of its rows)."""
 
 
 def run_point(config: Config | Mapping[str, Any] | str, replicas: int, seed: int) -> list[dict[str, Any]]:
@@ -26,6 +28,7 @@ def run_point(config: Config | Mapping[str, Any] | str, replicas: int, seed: int
     Taichi starts here on first use, with the config's ``[engine]`` settings (once per process).
     """
     from tflock.ensemble import replica_config, run_replicas
+    from tflock.observables import order_statistics
 
     if isinstance(config, str):
         config = tomllib.loads(config)
@@ -34,20 +37,34 @@ def run_point(config: Config | Mapping[str, Any] | str, replicas: int, seed: int
     start = time.perf_counter()
     tables = run_replicas(first, replicas)
     wall_s = (time.perf_counter() - start) / replicas  # batched replicas share their wall time
-    return [{"replica": r, **summarise(replica_config(first, r), table), "wall_s": wall_s}
+    halves = [_second_half(first, table) for table in tables]
+    pooled = order_statistics({m: np.concatenate([h[m] for h in halves]) for m in halves[0]}, first.params.n,
+                              suffix=POOLED)
+    return [{"replica": r, **summarise(replica_config(first, r), table), **pooled, "wall_s": wall_s}
             for r, table in enumerate(tables)]
+
+
+def _second_half(config: Config, table: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Each metric's values at the logged steps >= steps / 2."""
+    late = np.asarray(table["step"]) >= config.steps / 2
+    return {m: np.asarray(values)[late] for m, values in table.items() if m not in ("step", "time")}
 
 
 def summarise(config: Config, table: Mapping[str, np.ndarray]) -> dict[str, Any]:
     """A replica's row from its config and metrics table (columns ``step``, ``time`` and one per metric, as
     :meth:`tflock.simulation.Simulation.metrics` gives): ``seed``, ``steps``, ``final_<m>`` (the last logged step),
-    ``mean_<m>`` and ``std_<m>`` over the logged steps >= steps / 2, and ``config`` (its full TOML)."""
-    metrics = [name for name in table if name not in ("step", "time")]
-    late = np.asarray(table["step"]) >= config.steps / 2
+    ``mean_<m>`` and ``std_<m>`` over the logged steps >= steps / 2, for each order parameter m (e.g.
+    ``polarization``) its Binder cumulant ``binder_<m>`` and susceptibility ``susceptibility_<m>`` over those steps
+    (:mod:`tflock.observables`), and ``config`` (its full TOML). :func:`run_point` adds ``binder_<m>_pooled`` and
+    ``susceptibility_<m>_pooled``, over the second halves of all replicas of the point."""
+    from tflock.observables import order_statistics
+
+    late = _second_half(config, table)
     row: dict[str, Any] = {"seed": config.seed, "steps": config.steps}
-    row.update({f"final_{m}": float(table[m][-1]) for m in metrics})
+    row.update({f"final_{m}": float(table[m][-1]) for m in late})
     for statistic in SUMMARIES:
         function = getattr(np, statistic)
-        row.update({f"{statistic}_{m}": float(function(np.asarray(table[m])[late])) for m in metrics})
+        row.update({f"{statistic}_{m}": float(function(values)) for m, values in late.items()})
+    row.update(order_statistics(late, config.params.n))
     row["config"] = config_to_toml(config)
     return row

@@ -1,0 +1,178 @@
+"""The transition's observables (tflock.observables): kernels against their NumPy references, the exact limits of
+the Binder cumulant, the number-fluctuation exponent of known point patterns, band counting on known profiles, and
+the sweep columns they feed."""
+
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+from conftest import PRECISION
+
+from tflock.observables import (
+    axis_profile,
+    band_statistics,
+    binder_cumulant,
+    box_counts,
+    gnf_levels,
+    number_fluctuations,
+    order_statistics,
+    susceptibility,
+)
+from tflock.reference.observables import axis_profile_np, box_counts_np
+
+REAL = np.float64 if PRECISION == "f64" else np.float32
+
+
+def upload(x: np.ndarray):
+    """Positions (n, d) as a component-major ndarray, and ids in a shuffled arrangement."""
+    n, dim = x.shape
+    perm = np.random.default_rng(0).permutation(n)
+    pos = ti.ndarray(ti.f64 if PRECISION == "f64" else ti.f32, (dim, n))
+    pos.from_numpy(np.ascontiguousarray(x[perm].T.astype(REAL)))
+    ids = ti.ndarray(ti.i32, n)
+    ids.from_numpy(perm.astype(np.int32))
+    return pos, ids
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_box_counts_and_profiles_match_reference(engine, dim):
+    box, n, replicas = 7.0, 600, 3
+    rng = np.random.default_rng(dim)
+    systems = [rng.uniform(0, box, (n, dim)).astype(REAL) for _ in range(replicas)]
+    systems[0][:5] = box  # on the far walls (a reflecting box holds x = L)
+    pos, ids = upload(np.concatenate(systems))
+    counts = box_counts(pos, ids, n, replicas, box, 8)
+    profiles = axis_profile(pos, ids, n, [0, dim - 1, 1], box, 20)
+    for r, x in enumerate(systems):
+        np.testing.assert_array_equal(counts[r], box_counts_np(x, box, 8))
+        assert counts[r].sum() == n
+        np.testing.assert_array_equal(profiles[r], axis_profile_np(x, [0, dim - 1, 1][r], box, 20))
+
+
+def test_binder_cumulant_of_independent_headings_is_n_plus_1_over_3n():
+    """<|sum e|^4> = 2N^2 - N for N independent uniform unit vectors in the plane: G = (N + 1) / (3N)."""
+    rng = np.random.default_rng(1)
+    for n in (1, 4, 16):
+        theta = rng.uniform(0, 2 * math.pi, (400_000, n))
+        phi = np.hypot(np.cos(theta).sum(axis=1), np.sin(theta).sum(axis=1)) / n
+        assert binder_cumulant(phi) == pytest.approx((n + 1) / (3 * n), abs=0.004), n
+    assert binder_cumulant(np.ones(10)) == pytest.approx(2 / 3, abs=1e-15)  # perfect order
+    assert math.isnan(binder_cumulant(np.zeros(3)))
+
+
+def test_susceptibility_and_the_sweep_columns():
+    phi = np.array([0.2, 0.4, 0.6])
+    assert susceptibility(phi, 100) == pytest.approx(100 * np.var(phi))
+    stats = order_statistics({"polarization": phi, "clusters": phi}, 100, suffix="_pooled")
+    assert set(stats) == {"binder_polarization_pooled", "susceptibility_polarization_pooled"}
+
+
+def test_number_fluctuations_of_independent_agents_grow_as_the_square_root():
+    rng = np.random.default_rng(3)
+    box, n = 64.0, 2 * 64**2
+    exponents = []
+    for _ in range(5):
+        x = rng.uniform(0, box, (n, 2))
+        levels = gnf_levels(n, 2, box)
+        assert levels == [4, 8, 16, 32, 64]  # boxes down to about one agent each (64 x 64 boxes of 2 agents)
+        std, a = number_fluctuations(box_counts_np(x, box, levels[-1]))
+        assert std[64] == pytest.approx(math.sqrt(2), rel=0.05)  # Poisson: Delta N = sqrt(<N>)
+        exponents.append(a)
+    assert np.mean(exponents) == pytest.approx(0.5, abs=0.02)
+
+
+def test_number_fluctuations_of_a_density_wave_grow_as_the_mean():
+    """A density modulated on the scale of the box (1 + 0.6 sin(2 pi x / L)): a box much smaller than the wave holds
+    a count proportional to its area times the local density, so Delta N ~ <N> (a = 1), as in the ordered Vicsek
+    phase's bands and density waves at their largest; Poisson noise only adds its square root."""
+    rng = np.random.default_rng(4)
+    box = 64.0
+    x = rng.uniform(0, box, (400_000, 2))
+    keep = rng.uniform(0, 1.6, len(x)) < 1 + 0.6 * np.sin(2 * np.pi * x[:, 0] / box)
+    std, a = number_fluctuations(box_counts_np(x[keep], box, 32))
+    assert a == pytest.approx(1.0, abs=0.1)
+
+
+def test_a_lattice_has_no_number_fluctuations():
+    xs, ys = np.meshgrid(np.arange(32) + 0.5, np.arange(32) + 0.5)
+    std, a = number_fluctuations(box_counts_np(np.stack([xs.ravel(), ys.ravel()], axis=1), 32.0, 16))
+    assert all(v == 0 for v in std.values()) and math.isnan(a)
+
+
+def test_band_counting():
+    bins = np.arange(100)
+    flat = np.full(100, 50)
+    assert band_statistics(flat, periodic=True)[:2] == (0.0, 0.0)
+    two = flat + 100 * ((np.abs(bins - 20) < 5) | (np.abs(bins - 70) < 5))
+    peaks, contrast, smooth = band_statistics(two, periodic=True)
+    assert peaks == 2 and contrast > 1 and len(smooth) == 100
+    wrapped = flat + 100 * ((bins < 4) | (bins > 95))  # one band across the periodic edge
+    assert band_statistics(wrapped, periodic=True)[0] == 1
+    assert band_statistics(wrapped, periodic=False)[0] == 2  # walls: two half bands
+    noisy = np.random.default_rng(5).poisson(50, 100)  # Poisson noise of a uniform gas is no band
+    assert band_statistics(noisy, periodic=True)[0] == 0
+
+
+def test_a_sweep_point_reaches_the_binder_limits(cpu_engine):
+    """Through the whole chain (model, metrics every step, second half, replicas): eta = 2 pi redraws every heading
+    uniformly at every step, so the pooled G is (N + 1) / (3N) (2000 samples: standard error 0.01); eta = 0 in a
+    box where every agent sees every other aligns them all in one step, so G = 2/3."""
+    from tflock.sweep.point import run_point
+
+    base = {"model": "vicsek", "steps": 1000, "log": {"metrics_every": 1}, "engine": {"precision": PRECISION},
+            "params": {"n": 8, "box": 1.0, "radius": 2.0, "speed": 0.1}}
+    rows = run_point({**base, "params": {**base["params"], "noise": 2 * math.pi}}, replicas=4, seed=1)
+    assert rows[0]["binder_polarization_pooled"] == pytest.approx(9 / 24, abs=0.04)
+    assert rows[0]["binder_polarization_pooled"] == rows[3]["binder_polarization_pooled"]
+    assert abs(rows[0]["binder_polarization"] - 9 / 24) < 0.08  # one replica alone: 500 samples
+    assert rows[0]["susceptibility_polarization_pooled"] == pytest.approx(8 * (1 / 8 - (math.pi / 4) / 8), rel=0.1)
+    rows = run_point({**base, "steps": 20, "params": {**base["params"], "noise": 0.0}}, replicas=2, seed=1)
+    assert rows[1]["binder_polarization_pooled"] == pytest.approx(2 / 3, abs=1e-6)
+
+
+def test_a_recording_carries_the_band_profile(cpu_engine, tmp_path):
+    """A periodic Vicsek run logs the density profile as a bar chart per frame, in units of the mean density, and
+    the band and number-fluctuation metrics as series; an open-space run has none of them."""
+    from rerun.chunk import RrdReader
+
+    import tflock
+    from tflock.record import read_recording
+
+    path = tmp_path / "bands.rrd"
+    sim = tflock.Simulation(model="vicsek", params={"n": 500, "box": 16.0, "noise": 0.3}, steps=4,
+                            engine={"precision": cpu_engine.precision}, record=path)
+    sim.run()
+    sim.close()
+    summary = read_recording(path)
+    assert "/profiles/band_profile" in summary.entities
+    assert {"band_peaks", "band_contrast", "gnf_exponent", "gnf_std_4"} <= set(summary.final_metrics)
+    charts = []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == "/profiles/band_profile" and chunk.num_rows:
+            batch = chunk.to_record_batch()
+            charts += [np.asarray(v[0]["buffer"]) for v in batch.column("BarChart:values").to_pylist() if v]
+    assert len(charts) == summary.frames
+    assert all(len(c) == 16 and c.mean() == pytest.approx(1.0, rel=1e-6) for c in charts)  # slabs of side R = 1
+
+    sim = tflock.Simulation(model="vicsek", params={"n": 50, "boundary": "open"}, steps=2,
+                            engine={"precision": cpu_engine.precision})
+    assert not any(name.startswith(("band_", "gnf_")) for name in sim.model.metric_descriptions)
+    assert sim.model.profile_descriptions == {}
+
+
+def test_giant_number_fluctuations_of_the_ordered_vicsek_phase(cpu_engine):
+    """Chate et al. (2008): deep in the ordered phase of the 2D Vicsek model (density 2, v0 = 0.5) the number
+    fluctuations are giant, Delta N ~ <N>^0.8; a disordered swarm (eta = 2 pi) has Poisson ones, a = 1/2."""
+    import tflock
+
+    exponents = {}
+    for noise in (0.3, 2 * math.pi):
+        sim = tflock.Simulation(model="vicsek", params={"n": 2048, "box": 32.0, "noise": noise}, steps=600, seed=1,
+                                log={"metrics_every": 50}, engine={"precision": cpu_engine.precision})
+        sim.run()
+        table = sim.metrics()
+        exponents[noise] = float(np.mean(table["gnf_exponent"][-6:]))  # steps 350-600
+        assert (table["polarization"][-1] > 0.9) == (noise < 1)
+    assert exponents[0.3] == pytest.approx(0.8, abs=0.08)
+    assert exponents[2 * math.pi] == pytest.approx(0.5, abs=0.06)

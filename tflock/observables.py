@@ -1,0 +1,222 @@
+"""Observables of the flocking transition (Chate, Ginelli, Gregoire & Raynaud, PRE 77 046113, 2008; issue 29).
+
+- **Binder cumulant** of the order parameter phi, G = 1 - <phi^4> / (3 <phi^2>^2), and the **susceptibility**
+  chi = N (<phi^2> - <phi>^2), over samples of phi (the logged steps of the second half of a run, and the
+  replicas of a sweep point): :func:`binder_cumulant`, :func:`susceptibility`, :func:`order_statistics`. G = 2/3
+  for a perfectly ordered swarm; for N independent uniform headings G = (N + 1) / (3N) in 2D and (4N + 2) / (9N)
+  in 3D (their means <|sum e|^4> = 2N^2 - N and N^2 + 2N(N - 1)/3). Near a discontinuous transition G dips below
+  zero in large enough systems (coexisting ordered and disordered states give phi a two-peaked law).
+- **Giant number fluctuations**: the agents are counted in the M^d boxes of side L / M of a periodic or
+  reflecting box (:func:`box_counts`, a kernel over all agents with integer atomics, so the counts do not depend
+  on the thread count), for M = 4, 8, ... up to boxes that hold about one agent on average (at most 256 per side
+  in 2D, 32 in 3D); boxes of side 2L / M are sums of 2^d boxes of side L / M. The standard deviation Delta N of
+  the count against its mean <N> grows as <N>^a: a = 1/2 for independent agents, about 0.8 in the ordered phase
+  of the 2D Vicsek model (Chate et al. 2008). :func:`number_fluctuations` gives Delta N per M and the fitted a.
+- **Bands**: the density profile along the box axis nearest to the mean heading (:func:`axis_profile`, a 1D
+  histogram in a kernel, L // R bins, 8 to PROFILE_BINS), smoothed over BAND_SMOOTHING bins; :func:`band_statistics`
+  counts its peaks (runs of bins above BAND_THRESHOLD times the mean density; circular in a periodic box) and its
+  contrast (largest minus smallest smoothed density, in units of the mean). Travelling bands near the threshold
+  give one peak or more; a homogeneous state, ordered or not, gives none.
+
+The kernels' NumPy references are in :mod:`tflock.reference.observables`.
+"""
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import taichi as ti
+
+#: metrics that are order parameters: the sweep tables give their Binder cumulant and susceptibility
+ORDER_PARAMETERS = ("polarization", "phi_theta")
+#: number fluctuations: the coarsest boxes per side, and the finest at most, in 2D and 3D
+GNF_COARSEST = 4
+GNF_FINEST = {2: 256, 3: 32}
+#: bands: profile bins at most, smoothing window (bins, odd), and the density (in units of the mean) above which a
+#: bin belongs to a peak
+PROFILE_BINS = 512
+BAND_SMOOTHING = 5
+BAND_THRESHOLD = 1.5
+
+
+# ---------------------------------------------------------------------------------------------------- statistics
+
+
+def binder_cumulant(phi: np.ndarray) -> float:
+    """G = 1 - <phi^4> / (3 <phi^2>^2) over the samples `phi` (NaN without samples, or all zero)."""
+    phi = np.asarray(phi, dtype=np.float64).ravel()
+    m2 = float(np.mean(phi**2)) if phi.size else 0.0
+    return 1.0 - float(np.mean(phi**4)) / (3.0 * m2 * m2) if m2 > 0 else math.nan
+
+
+def susceptibility(phi: np.ndarray, n: int) -> float:
+    """chi = N (<phi^2> - <phi>^2) over the samples `phi` of a system of N agents."""
+    phi = np.asarray(phi, dtype=np.float64).ravel()
+    return float(n * np.var(phi)) if phi.size else math.nan
+
+
+def order_statistics(samples: Mapping[str, np.ndarray], n: int, suffix: str = "") -> dict[str, float]:
+    """``binder_<m><suffix>`` and ``susceptibility_<m><suffix>`` of each order parameter m among `samples`."""
+    out = {}
+    for name in ORDER_PARAMETERS:
+        if name in samples:
+            out[f"binder_{name}{suffix}"] = binder_cumulant(samples[name])
+            out[f"susceptibility_{name}{suffix}"] = susceptibility(samples[name], n)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------- kernels
+
+
+@ti.kernel
+def _box_counts(n: ti.i32, per_replica: ti.i32, m: ti.i32, scale: float, dim: ti.template(),
+                pos: ti.types.ndarray(), ids: ti.types.ndarray(), counts: ti.types.ndarray()):
+    for e in range(n):
+        b = 0
+        for a in ti.static(range(dim - 1, -1, -1)):  # row-major, the last axis slowest
+            b = b * m + ti.math.clamp(ti.cast(pos[a, e] * scale, ti.i32), 0, m - 1)
+        ti.atomic_add(counts[ids[e] // per_replica, b], 1)
+
+
+@ti.kernel
+def _axis_profile(n: ti.i32, per_replica: ti.i32, bins: ti.i32, scale: float, pos: ti.types.ndarray(),
+                  ids: ti.types.ndarray(), axis: ti.types.ndarray(), hist: ti.types.ndarray()):
+    for e in range(n):
+        r = ids[e] // per_replica
+        b = ti.math.clamp(ti.cast(pos[axis[r], e] * scale, ti.i32), 0, bins - 1)
+        ti.atomic_add(hist[r, b], 1)
+
+
+def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, box: float, m: int) -> np.ndarray:
+    """Agents in each of the m^d boxes of side box / m, per replica: (replicas, m, ..., m) ints, the first box axis
+    the last coordinate (row-major). `pos` (d, n) and `ids` in any arrangement of the agents."""
+    dim, n = pos.shape
+    counts = ti.ndarray(ti.i32, (replicas, m**dim))
+    counts.fill(0)
+    _box_counts(n, per_replica, m, m / box, dim, pos, ids, counts)
+    return counts.to_numpy().reshape((replicas,) + (m,) * dim)
+
+
+def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Sequence[int], box: float,
+                 bins: int) -> np.ndarray:
+    """Agents in each of `bins` slabs of width box / bins across axis ``axes[r]``, per replica r: (replicas, bins)."""
+    n = pos.shape[1]
+    replicas = len(axes)
+    axis = ti.ndarray(ti.i32, replicas)
+    axis.from_numpy(np.asarray(axes, dtype=np.int32))
+    hist = ti.ndarray(ti.i32, (replicas, bins))
+    hist.fill(0)
+    _axis_profile(n, per_replica, bins, bins / box, pos, ids, axis, hist)
+    return hist.to_numpy()
+
+
+# ---------------------------------------------------------------------------------------------------- summaries
+
+
+def gnf_levels(n: int, dim: int, box: float) -> list[int]:
+    """Boxes per side M of the number fluctuations, coarsest first: 4, 8, ... while a box holds about one agent or
+    more on average (n / M^dim >= 1, in integers: any box size, 1e300 included), at most GNF_FINEST[dim]; empty when
+    even 4 per side would hold less. The levels depend on n and dim only (`box` is kept for the callers)."""
+    levels = []
+    m = GNF_COARSEST
+    while m <= GNF_FINEST[dim] and m**dim <= n:
+        levels.append(m)
+        m *= 2
+    return levels
+
+
+def number_fluctuations(counts: np.ndarray) -> tuple[dict[int, float], float]:
+    """From one system's finest box counts (m, ..., m): the standard deviation of the count for each M = m, m/2,
+    ... >= GNF_COARSEST, and the exponent a of Delta N ~ <N>^a fitted (least squares, logs) over those M (NaN with
+    fewer than two, or a zero deviation)."""
+    dim, m = counts.ndim, counts.shape[0]
+    std = {}
+    c = np.asarray(counts, dtype=np.int64)
+    while m >= GNF_COARSEST:
+        std[m] = float(c.std())
+        m //= 2
+        c = c.reshape(sum(((m, 2) for _ in range(dim)), ())).sum(axis=tuple(range(1, 2 * dim, 2)))
+    total = float(np.asarray(counts).sum())
+    means = np.array([total / k**dim for k in std])
+    dev = np.array(list(std.values()))
+    if len(std) < 2 or not (dev > 0).all():
+        return std, math.nan
+    return std, float(np.polyfit(np.log(means), np.log(dev), 1)[0])
+
+
+def band_statistics(hist: np.ndarray, periodic: bool) -> tuple[float, float, np.ndarray]:
+    """From one system's slab counts: the number of density peaks, the contrast, and the smoothed density profile
+    in units of the mean (see the module)."""
+    density = np.asarray(hist, dtype=np.float64) / max(float(np.mean(hist)), 1e-300)
+    half = BAND_SMOOTHING // 2
+    if periodic:
+        padded = np.concatenate([density[-half:], density, density[:half]])
+    else:
+        padded = np.pad(density, half, mode="edge")
+    smooth = np.convolve(padded, np.ones(BAND_SMOOTHING) / BAND_SMOOTHING, mode="valid")
+    high = smooth > BAND_THRESHOLD
+    starts = high & ~np.roll(high, 1) if periodic else high & ~np.concatenate([[False], high[:-1]])
+    peaks = int(starts.sum()) if not (periodic and high.all()) else 0
+    return float(peaks), float(smooth.max() - smooth.min()), smooth
+
+
+def profile_bins(box: float, radius: float) -> int:
+    """Slabs of the band profile: L // R (slabs of side about R), at most PROFILE_BINS, at least 8."""
+    return int(min(PROFILE_BINS, max(8, box // radius)))
+
+
+class TransitionObservables:
+    """The number-fluctuation and band metrics of a model in a periodic or reflecting box (none in open space),
+    for one system or a batch of replicas."""
+
+    def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, replicas: int = 1) -> None:
+        self.n, self.dim, self.box, self.replicas = n, dim, box, replicas
+        self.periodic = boundary == "periodic"
+        self.enabled = boundary != "open"
+        self.levels = gnf_levels(n, dim, box) if self.enabled else []
+        self.bins = profile_bins(box, radius)
+        self.descriptions: dict[str, str] = {}
+        self.profile_descriptions: dict[str, str] = {}
+        if not self.enabled:
+            return
+        self.profile_descriptions["band_profile"] = (f"density along the axis nearest to the mean heading, in "
+                                                     f"{self.bins} slabs, / mean density")
+        if len(self.levels) >= 2:
+            self.descriptions["gnf_exponent"] = "giant number fluctuations: a in Delta N ~ <N>^a (0.5 uniform)"
+        for m in self.levels:
+            self.descriptions[f"gnf_std_{m}"] = (f"std of the agents in a box of side L/{m} (mean "
+                                                 f"{n / m**dim:.4g})")
+        self.descriptions["band_peaks"] = "density peaks (bands) along the axis nearest to the mean heading"
+        self.descriptions["band_contrast"] = "band contrast: max - min smoothed density / mean density"
+
+    def compute(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray) -> dict[str, np.ndarray]:
+        """The metrics of each replica (arrays of length ``replicas``); `mean_direction` (replicas, d) picks the
+        profile's axis."""
+        if not self.enabled:
+            return {}
+        out: dict[str, np.ndarray] = {}
+        if self.levels:
+            counts = box_counts(pos, ids, self.n, self.replicas, self.box, self.levels[-1])
+            fits = [number_fluctuations(c) for c in counts]
+            if len(self.levels) >= 2:
+                out["gnf_exponent"] = np.array([a for _, a in fits])
+            for m in self.levels:
+                out[f"gnf_std_{m}"] = np.array([std[m] for std, _ in fits])
+        hist = self.profiles(pos, ids, mean_direction)
+        bands = [band_statistics(h, self.periodic) for h in hist]
+        out["band_peaks"] = np.array([b[0] for b in bands])
+        out["band_contrast"] = np.array([b[1] for b in bands])
+        return out
+
+    def frame_profiles(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray) -> dict[str, np.ndarray]:
+        """The profiles a frame of one system carries: the slab density along the axis nearest to its mean heading
+        (`mean_direction`, (d,)), in units of the mean density (none in open space)."""
+        if not self.enabled:
+            return {}
+        hist = self.profiles(pos, ids, np.asarray(mean_direction)[None])[0]
+        return {"band_profile": hist * (self.bins / self.n)}
+
+    def profiles(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray) -> np.ndarray:
+        """Slab counts along each replica's axis nearest to its mean heading: (replicas, bins)."""
+        axes = np.argmax(np.abs(np.asarray(mean_direction).reshape(self.replicas, self.dim)), axis=1)
+        return axis_profile(pos, ids, self.n, axes.tolist(), self.box, self.bins)

@@ -1,0 +1,200 @@
+"""Topological neighbours: the k agents nearest to each agent (Ballerini et al. 2008), found on the cell grid.
+
+Ballerini et al. (PNAS 105, 1232, 2008) found that a starling in a flock interacts with a fixed number of its
+nearest neighbours (six to seven), whatever their distance. :func:`nearest` finds them for every agent of a built
+:class:`~tflock.neighbors.CellGrid` by growing rings of cells: ring r holds the cells at Chebyshev distance r from
+the agent's cell. An agent not yet met lies in a cell at ring r + 1 or beyond, so it is at least (r + m) h away,
+where h is the cell side and m the agent's least distance to a face of its own cell in units of h; once the k-th
+nearest candidate met so far is closer than that, the k nearest are certain. Otherwise the next ring is searched,
+until every cell (of the agent's replica) has been visited: in a periodic box, offsets are taken modulo the box so
+that no cell is met twice; in open space, where cells are hashed, until every other agent of its replica was met.
+
+Candidates are ordered by (squared distance, agent id): equal distances are resolved by the smaller id, so the
+neighbours do not depend on the order in which cells are visited or on the thread count. Distances follow the
+boundary: minimum image in a periodic box.
+
+The cell side is chosen from the mean density (:func:`cell_side`): in a uniform swarm the k-th neighbour then lies
+within the first ring for most agents, and a search visits about ``3^d`` cells of a few agents each.
+"""
+
+import math
+
+import taichi as ti
+
+from tflock.neighbors import bucket_of_cell, load_cell, load_vec, same_cell, span_agents
+from tflock.space import OPEN, PERIODIC, displacement
+
+#: cell side / the distance within which a uniform swarm of the mean density holds k agents on average (see
+#: :func:`cell_side`); set by timing the search at N = 1e6 and k = 6 and 7 (docs/performance.md)
+CELL_FACTOR = 1.25
+#: the k-th candidate is certain only when closer than the bound by this relative margin (rounding of squared
+#: distances may put an agent just beyond the bound just below it)
+CERTAIN_MARGIN = 1e-4
+#: id of an empty entry in the k-best list: larger than every agent id
+NO_AGENT = 2**31 - 1
+
+
+def cell_side(n: int, k: int, dim: int, box: float) -> float:
+    """Cell side for n agents in a box of side `box` (open space: the initial square or cube) with k neighbours:
+    CELL_FACTOR times the radius of the disc (sphere) that holds k agents at the mean density."""
+    density = n / box**dim
+    reach = math.sqrt(k / (math.pi * density)) if dim == 2 else (3 * k / (4 * math.pi * density)) ** (1 / 3)
+    return CELL_FACTOR * reach
+
+
+@ti.func
+def _before(d2a, ida, d2b, idb):
+    """Whether candidate (d2a, ida) comes before (d2b, idb): nearer, or as near with a smaller id."""
+    return (d2a < d2b) | ((d2a == d2b) & (ida < idb))
+
+
+@ti.func
+def _offer(d2, j, slot, best_d, best_id, best_slot, k: ti.template()):
+    """Insert candidate (d2, agent j at `slot`) into the sorted k-best lists if it belongs there (the last entry
+    drops out); branch-free, so the k entries stay in registers."""
+    if _before(d2, j, best_d[k - 1], best_id[k - 1]):
+        carry_d, carry_id, carry_slot = d2, j, slot
+        for e in ti.static(range(k)):
+            swap = _before(carry_d, carry_id, best_d[e], best_id[e])
+            old_d, old_id, old_slot = best_d[e], best_id[e], best_slot[e]
+            best_d[e] = ti.select(swap, carry_d, old_d)
+            best_id[e] = ti.select(swap, carry_id, old_id)
+            best_slot[e] = ti.select(swap, carry_slot, old_slot)
+            carry_d = ti.select(swap, old_d, carry_d)
+            carry_id = ti.select(swap, old_id, carry_id)
+            carry_slot = ti.select(swap, old_slot, carry_slot)
+    return best_d, best_id, best_slot
+
+
+@ti.func
+def _row_span(c, r, row, seg, nc, boundary: ti.template(), dim: ti.template()):
+    """Span `seg` (0 or 1) of row `row` of ring r around cell c in a box layout, as a bucket range [lo, hi) (empty
+    when lo == hi). A row fixes the offsets of the axes other than x; a row on the ring's rim is the whole x range
+    [-r, r] (seg 1: its part wrapped round a periodic edge), an inner row the two cells x = -r (seg 0) and x = +r
+    (seg 1). Periodic offsets of each axis stay in [-(nc // 2), (nc - 1) // 2], reflecting ones inside the box."""
+    side = 2 * r + 1
+    b = c[dim]  # the replica's block of buckets
+    ok = True
+    rim = r == 0
+    for a in ti.static(range(dim - 1, 0, -1)):  # row-major: the last axis varies slowest
+        o = (row // side ** (a - 1)) % side - r
+        if ti.abs(o) == r:
+            rim = True
+        t = c[a] + o
+        if ti.static(boundary == PERIODIC):
+            if o < -(nc // 2) or o > (nc - 1) // 2:
+                ok = False
+            t = (t % nc + nc) % nc
+        elif t < 0 or t >= nc:
+            ok = False
+        b = b * nc + t
+    b *= nc
+    lo_o = -r
+    hi_o = r
+    if ti.static(boundary == PERIODIC):
+        lo_o = ti.max(lo_o, -(nc // 2))
+        hi_o = ti.min(hi_o, (nc - 1) // 2)
+    else:
+        lo_o = ti.max(lo_o, -c[0])
+        hi_o = ti.min(hi_o, nc - 1 - c[0])
+    x0 = 0
+    x1 = -1  # inclusive cell range in x, empty by default
+    if ok:
+        if rim:
+            x0, x1 = c[0] + lo_o, c[0] + hi_o
+            if ti.static(boundary == PERIODIC):
+                if x0 < 0:  # [x0, x1] wraps left: [0, x1] then [x0 + nc, nc - 1]
+                    x0, x1 = ti.select(seg == 0, 0, x0 + nc), ti.select(seg == 0, x1, nc - 1)
+                elif x1 >= nc:  # wraps right: [x0, nc - 1] then [0, x1 - nc]
+                    x0, x1 = ti.select(seg == 0, x0, 0), ti.select(seg == 0, nc - 1, x1 - nc)
+                elif seg == 1:
+                    x1 = x0 - 1
+            elif seg == 1:
+                x1 = x0 - 1
+        else:
+            o = ti.select(seg == 0, -r, r)
+            if lo_o <= o and o <= hi_o:
+                x0 = c[0] + o
+                if ti.static(boundary == PERIODIC):
+                    x0 = (x0 % nc + nc) % nc
+                x1 = x0
+    lo = 0  # an empty span reads start[0] only: a row outside the box has no valid bucket
+    hi = 0
+    if x1 >= x0:
+        lo = b + x0
+        hi = b + x1 + 1
+    return lo, hi
+
+
+@ti.kernel
+def nearest(n: ti.i32, per_replica: ti.i32, box: float, cell: float, nc: ti.i32, n_buckets: ti.i32,
+            k: ti.template(), boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+            mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+            id_sorted: ti.types.ndarray(), nbr: ti.types.ndarray(), rings: ti.types.ndarray()):
+    """``nbr[e, s]``: the grid slot of the e-th nearest agent to the agent at slot s (e = 0 the nearest), for
+    every slot of a grid whose cells have side `cell` (``nc`` per side in a box); ``rings[s]``: the rings its search
+    visited (for the benchmarks and tests)."""
+    for s in range(n):
+        p = load_vec(pos_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
+        margin = 0.5  # the agent's least distance to a face of its cell, in cells
+        for a in ti.static(range(dim)):
+            f = p[a] / cell - c[a]
+            if ti.static(boundary == OPEN):
+                f = p[a] / cell - ti.floor(p[a] / cell)
+            margin = ti.min(margin, ti.min(f, 1.0 - f))
+        margin = ti.max(margin, 0.0)
+        last = 0  # the last ring with cells in it: every cell of the replica is visited by then (box layouts)
+        if ti.static(boundary == PERIODIC):
+            last = nc // 2
+        elif ti.static(boundary != OPEN):
+            for a in ti.static(range(dim)):
+                last = ti.max(last, ti.max(c[a], nc - 1 - c[a]))
+        best_d = ti.Vector([math.inf] * k)
+        best_id = ti.Vector([NO_AGENT] * k, dt=ti.i32)
+        best_slot = ti.Vector([-1] * k, dt=ti.i32)
+        seen = 0
+        r = 0
+        done = False
+        while not done:
+            if ti.static(boundary == OPEN):  # each cell of the ring is hashed on its own
+                side = 2 * r + 1
+                for q in range(side**dim):
+                    cell_c = c
+                    rim = False
+                    for a in ti.static(range(dim)):
+                        o = (q // side**a) % side - r
+                        cell_c[a] = c[a] + o
+                        if ti.abs(o) == r:
+                            rim = True
+                    if rim:
+                        lo = bucket_of_cell(cell_c, nc, n_buckets, boundary, dim)
+                        begin, end, check = span_agents(lo, lo + 1, cell_c, start, mixed, coords_sorted, boundary,
+                                                        dim)
+                        for kk in range(begin, end):
+                            if kk != s and (check == 0 or same_cell(coords_sorted, kk, cell_c, boundary, dim) == 1):
+                                d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
+                                seen += 1
+                                best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d,
+                                                                    best_id, best_slot, k)
+            else:
+                for q in range(2 * (2 * r + 1) ** (dim - 1)):
+                    lo, hi = _row_span(c, r, q // 2, q % 2, nc, boundary, dim)
+                    for kk in range(start[lo], start[hi]):
+                        if kk != s:
+                            d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
+                            seen += 1
+                            best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d, best_id,
+                                                                best_slot, k)
+            bound = (r + margin) * cell
+            if seen >= k and best_d[k - 1] < bound * bound * (1.0 - CERTAIN_MARGIN):
+                done = True
+            if ti.static(boundary == OPEN):
+                if seen >= per_replica - 1:
+                    done = True
+            elif r >= last:
+                done = True
+            r += 1
+        for e in ti.static(range(k)):
+            nbr[e, s] = best_slot[e]
+        rings[s] = r
