@@ -436,6 +436,11 @@ def test_metric_groups_and_constant_series(tmp_path: Path) -> None:
         "connected": [("connected", "connected")],
         "mean_heading": [("mean_heading", "mean_heading")],
     }
+    # indices that are no agent ids are named by what they are: gnf_std_<m> is a box of side L/m
+    assert metric_groups(["gnf_exponent", "gnf_std_4", "gnf_std_8", "gnf_std_16"]) == {
+        "gnf_exponent": [("gnf_exponent", "gnf_exponent")],
+        "gnf_std": [("gnf_std_4", "box L/4"), ("gnf_std_8", "box L/8"), ("gnf_std_16", "box L/16")],
+    }
     path = tmp_path / "constant.rrd"
     with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS, path=path) as rec:
         for step in range(3):
@@ -530,3 +535,81 @@ def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, pa
         assert 0 < fmt["width"] <= 32 and 0 < fmt["height"] <= 32
         (image,) = _last(field, "SegmentationImage:buffer")
         assert np.count_nonzero(np.asarray(image)) > 0, plane
+
+
+def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) -> None:
+    """A series of the step just made (Vicsek's ``updated``: 0 at step 0, where no step was made, 1 at every step
+    after) counts as constant: the last layout puts it and the other constant series in one plot, "constant", with
+    a legend naming them, after the plots of the series that change."""
+    path = tmp_path / "steady.rrd"
+    metrics = {"order": "polarisation", "updated": "fraction updated", "components": "components"}
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path) as rec:
+        for step in range(4):
+            rec.log_metrics(step, {"order": 0.1 * step, "updated": float(step > 0), "components": 1.0})
+        assert rec.constant_metrics() == ("updated", "components")
+    legends = _plot_legends(path)
+    assert list(legends) == ["order", "constant"]
+    assert legends["constant"]["PlotLegend:visible"] == [True]
+
+
+def test_legend_corner_avoids_the_data() -> None:
+    """A plot's legend goes to the corner with the fewest of its points under it: a series that decays from the top
+    left to the bottom right leaves the right top (the first choice) and the left bottom free; one that rises leaves
+    the left top and right bottom; ties (a flat line in the middle) keep the first choice."""
+    from tflock.record import LEGEND_CORNERS, legend_corner
+
+    steps = list(range(100))
+    decay = [math.exp(-s / 10) for s in steps]
+    rise = [1 - d for d in decay]
+    assert legend_corner([(steps, decay), (steps, [0.5 * d for d in decay])]) == "RightTop"
+    assert legend_corner([(steps, rise), (steps, [0.8 * r for r in rise])]) == "RightBottom"
+    # one series high throughout, one that drops at half time: only the left bottom is free
+    assert legend_corner([(steps, [1.0] * 100), (steps, [1.0 if s < 50 else 0.0 for s in steps])]) == "LeftBottom"
+    assert legend_corner([(steps, [0.5] * 100)]) == LEGEND_CORNERS[0]
+    assert legend_corner([]) == LEGEND_CORNERS[0]
+
+
+def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: Path) -> None:
+    """A Vicsek recording's number-fluctuation series form one plot, ``gnf_std``, whose lines are named by their box
+    size (not "agent 4"); the layout sent at the end places that plot's legend in the corner that covers the fewest
+    of its points."""
+    from rerun.blueprint.components import Corner2D
+
+    from tflock.record import legend_corner
+
+    path = tmp_path / "gnf.rrd"
+    sim = make_sim(model="vicsek", params={"n": 2000, "box": 32.0}, steps=12, record=path,
+                   log={"max_agents": 100, "max_edges": 10, "field": 0})
+    sim.run()
+    recorder = sim.recorder
+    sim.close()
+    traces = {n: (t.steps, t.values) for n, t in recorder._traces.items() if n.startswith("gnf_std_")}
+    assert len(traces) >= 2
+    batches = _chunks(path)
+    for name in traces:
+        assert _last(batches[f"/metrics/{name}"], "SeriesLines:names") == [f"box L/{name.rsplit('_', 1)[1]}"]
+    legends = _plot_legends(path)
+    assert "gnf_std" in legends and not any("agent" in name for name in legends)
+    assert legends["gnf_std"]["PlotLegend:visible"] == [True]
+    corner = getattr(Corner2D, legend_corner(list(traces.values())))
+    assert legends["gnf_std"]["PlotLegend:corner"] == [corner.value]
+
+
+def _plot_legends(path: Path) -> dict[str, dict[str, list]]:
+    """The plots of the last layout in a recording: view name -> its PlotLegend components."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    layouts = {store: [c.to_record_batch().to_pylist() for c in reader.stream(store=store)]
+               for store in reader.blueprints()}
+    last = max(layouts, key=lambda store: max(row["log_time"] for rows in layouts[store] for row in rows))
+    names: dict[str, str] = {}
+    legends: dict[str, dict[str, list]] = {}
+    for chunk, rows in zip(reader.stream(store=last), layouts[last], strict=True):
+        for row in rows:
+            for key, value in row.items():
+                if key.endswith(":display_name"):
+                    names[chunk.entity_path] = value[0]
+                elif key.startswith("PlotLegend:"):
+                    legends.setdefault(chunk.entity_path.rsplit("/", 1)[0], {})[key] = value
+    return {names[view]: legend for view, legend in legends.items()}

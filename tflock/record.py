@@ -93,6 +93,18 @@ EDGE_COLOR = (200, 200, 200, 110)
 BOUNDS_COLOR = (200, 200, 200)
 #: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
 DRAW_FIELD, DRAW_EDGES, DRAW_TRAILS, DRAW_ARROWS, DRAW_AGENTS, DRAW_MARKERS = -20.0, 0.0, 5.0, 10.0, 20.0, 30.0
+#: screen pixels a unit of the colours view at the default layout (about 45 at 1280 x 800 and 1600 x 1000)
+LEGEND_PX = 45.0
+#: how far a legend's text label is raised above the row it names, in legend units: the viewer hangs a point's label
+#: below the point (the label's top edge at the point, about 20 px high), so a label anchored 11 px up is level
+#: with the swatches of its row
+LABEL_RISE = 11.0 / LEGEND_PX
+
+
+def _label_width(text: str) -> float:
+    """The width of a label in legend units (about 7 px a character and 10 px of padding): the viewer centres a
+    label on its point, so a label's point goes half its width right of where its text should start."""
+    return (7.0 * len(text) + 10.0) / LEGEND_PX
 #: Rerun's batcher sends its pending rows on once they hold this many bytes (see :func:`batcher_config`)
 FLUSH_NUM_BYTES = 256 * 1024
 _METRIC_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
@@ -144,25 +156,30 @@ def point_radius(drawn: int) -> float:
 
 #: statistics suffixes and prefixes grouped into one plot (``valency_min``, ``mean_neighbors``, ...)
 _STATS = ("min", "mean", "max")
-_PER_AGENT = re.compile(r"^(.+)_(\d+)$")
+_INDEXED = re.compile(r"^(.+)_(\d+)$")
+#: what the number of an indexed series ``<base>_<i>`` is, where it is not an agent id: base -> series name
+#: (``gnf_std_8``: the number fluctuations in boxes of side L/8, :mod:`tflock.observables`)
+INDEX_NAMES = {"gnf_std": "box L/{}"}
 
 
 def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
     """Plots of related metrics: plot name -> [(metric, short series name)], in the order of first appearance.
 
-    ``<base>_<i>`` (per-agent series, ``speed_3``: "agent 3"), ``<base>_<stat>`` and ``<stat>_<base>`` (stat one
-    of min / mean / max: ``valency_min``, ``mean_neighbors``) and ``<kind>_energy`` go to the plot ``<base>`` (or
-    ``energy``) with the others of their base; every other metric has a plot of its own.
+    ``<base>_<i>`` (per-agent series, ``speed_3``: "agent 3"; other indices as :data:`INDEX_NAMES` names them,
+    ``gnf_std_8``: "box L/8"), ``<base>_<stat>`` and ``<stat>_<base>`` (stat one of min / mean / max:
+    ``valency_min``, ``mean_neighbors``) and ``<kind>_energy`` go to the plot ``<base>`` (or ``energy``) with the
+    others of their base; every other metric has a plot of its own.
     """
     keyed: dict[str, str] = {}  # metric -> group
     label: dict[str, str] = {}
     for name in names:
         group, short = name, name
-        per_agent = _PER_AGENT.match(name)
+        indexed = _INDEXED.match(name)
         head, _, tail = name.partition("_")
         stem, _, last = name.rpartition("_")
-        if per_agent:
-            group, short = per_agent.group(1), f"agent {per_agent.group(2)}"
+        if indexed:
+            group = indexed.group(1)
+            short = INDEX_NAMES.get(group, "agent {}").format(indexed.group(2))
         elif last in _STATS and stem:
             group, short = stem, last
         elif head in _STATS and tail:
@@ -180,6 +197,59 @@ def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
         else:
             out[group] = [(n, label[n]) for n in names_in]
     return out
+
+
+#: every plot's time axis spans the whole run, from its first step to its last. Left unset, the viewer derives a
+#: plot's range from the data it holds while the file streams in, stores it in the layout and then keeps that range:
+#: a 10,000-step Tanner recording opened in the web viewer showed steps 8900-10300 in every plot.
+WHOLE_RUN = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infinite(),
+                                                 end=rr.TimeRangeBoundary.infinite()))
+#: corners a plot's legend may take, in the order tried (ties go to the first)
+LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
+#: points kept of each series to place its plot's legend (every other point is dropped when more come)
+TRACE_POINTS = 2048
+
+
+class _Trace:
+    """A thinned copy of one series, for :func:`legend_corner`: at most :data:`TRACE_POINTS` points, evenly spaced
+    over the run (every `stride`-th value)."""
+
+    def __init__(self) -> None:
+        self.stride, self._seen = 1, 0
+        self.steps: list[int] = []
+        self.values: list[float] = []
+
+    def add(self, step: int, value: float) -> None:
+        if self._seen % self.stride == 0:
+            self.steps.append(step)
+            self.values.append(value)
+            if len(self.steps) > TRACE_POINTS:
+                del self.steps[1::2], self.values[1::2]
+                self.stride *= 2
+        self._seen += 1
+
+
+def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
+    """The corner of a plot (one of :data:`LEGEND_CORNERS`) where its legend covers the fewest of the series'
+    points (steps, values). The legend of k series is taken to cover the outer 0.4 of the plot's width and
+    min(0.9, 0.25 k) of its height (a line of about 22 px a series, on a plot about 100 px high), the plot
+    spanning the points' steps and finite values as the viewer fits them."""
+    steps = np.concatenate([np.asarray(s, np.float64) for s, _ in series]) if series else np.zeros(0)
+    values = np.concatenate([np.asarray(v, np.float64) for _, v in series]) if series else np.zeros(0)
+    keep = np.isfinite(values)
+    steps, values = steps[keep], values[keep]
+    if steps.size == 0:
+        return LEGEND_CORNERS[0]
+    x = (steps - steps.min()) / max(np.ptp(steps), 1e-300)
+    y = (values - values.min()) / np.ptp(values) if np.ptp(values) > 0 else np.full(values.shape, 0.5)
+    width, height = 0.4, min(0.9, 0.25 * len(series))
+    covered = {
+        "RightTop": np.count_nonzero((x > 1 - width) & (y > 1 - height)),
+        "LeftBottom": np.count_nonzero((x < width) & (y < height)),
+        "RightBottom": np.count_nonzero((x > 1 - width) & (y < height)),
+        "LeftTop": np.count_nonzero((x < width) & (y > 1 - height)),
+    }
+    return min(LEGEND_CORNERS, key=lambda corner: covered[corner])  # min keeps the first of equals
 
 
 def _has_display() -> bool:
@@ -270,6 +340,7 @@ class Recorder:
         self._leader_heading_drawn = False
         self._ids: np.ndarray | None = None  # agent ids of the rows last logged
         self._trail: list[np.ndarray] = []  # the drawn agents' last positions, oldest first
+        self._traces: dict[str, _Trace] = {n: _Trace() for n in self.metrics}  # where each plot's legend goes
         self._first_values: dict[str, float] = {}  # each metric's first value, while it has not changed
         self._changed: set[str] = set()
         self._metric_rows = 0
@@ -342,16 +413,19 @@ class Recorder:
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
-        views = []
-        for group, members in metric_groups(varying).items():
-            views.append(rrb.TimeSeriesView(name=group, origin=f"/{METRICS}",
-                                            contents=[f"/{METRICS}/{m}" for m, _ in members],
-                                            plot_legend=rrb.PlotLegend(visible=1 < len(members) <= 6)))
-        if constant:
-            views.append(rrb.TimeSeriesView(name="constant: " + ", ".join(constant), origin=f"/{METRICS}",
-                                            contents=[f"/{METRICS}/{m}" for m in constant],
-                                            plot_legend=rrb.PlotLegend(visible=len(constant) <= 6)))
-        return views
+        plots = [(group, [m for m, _ in members]) for group, members in metric_groups(varying).items()]
+        if constant:  # one: named in the title; more: named in the legend (a long title is cut off)
+            plots.append(("constant" + (f": {constant[0]}" if len(constant) == 1 else ""), list(constant)))
+        return [rrb.TimeSeriesView(name=name, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in members],
+                                   plot_legend=self._legend(members), axis_x=WHOLE_RUN) for name, members in plots]
+
+    def _legend(self, members: list[str]) -> rrb.PlotLegend:
+        """A plot's legend: shown for 2 to 6 series, in the corner where it covers the fewest of their points so far
+        (:func:`legend_corner`)."""
+        if not 1 < len(members) <= 6:
+            return rrb.PlotLegend(visible=False)
+        corner = legend_corner([(self._traces[m].steps, self._traces[m].values) for m in members])
+        return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
 
     def _about(self) -> str:
         """Markdown: what the world view draws and every metric's description."""
@@ -457,12 +531,17 @@ class Recorder:
                 x = 2.2
             else:
                 k = len(legend.entries)
+                labels, colors = [label for label, _ in legend.entries], [c for _, c in legend.entries]
                 where = np.stack([np.full(k, -0.8), np.linspace(-1.0, 1.0, k) if k > 1 else np.zeros(1)], axis=1)
-                entries = rr.Points2D(where.astype(np.float32), colors=[c for _, c in legend.entries],
-                                      labels=[label for label, _ in legend.entries], show_labels=True,
+                entries = rr.Points2D(where.astype(np.float32), colors=colors, labels=labels, show_labels=False,
                                       radii=rr.Radius.ui_points(6.0))
                 rec.log(f"{LEGEND}/entries", entries, static=True)
-                x = 2.4
+                # each name right of its dot, level with it
+                text = [(-0.55 + _label_width(label) / 2, y - LABEL_RISE) for label, y in zip(labels, where[:, 1],
+                                                                                              strict=True)]
+                rec.log(f"{LEGEND}/entries/names", rr.Points2D(np.array(text, np.float32), radii=0.0, labels=labels,
+                                                               colors=colors, show_labels=True), static=True)
+                x = -0.55 + max(_label_width(label) for label in labels) + 0.6
         if self.field:
             colors = class_colors()[:, :3]
             hues = np.arange(0, 24, 3)
@@ -474,7 +553,9 @@ class Recorder:
             rec.log(f"{LEGEND}/field", rr.Points2D(np.array(swatches, np.float32), colors=np.array(swatch_colors),
                                                    radii=rr.Radius.ui_points(6.0)), static=True)
             notes = ["dense", "mean density", "sparse", "disordered"]
-            where = np.array([[x + 0.22 * len(hues) + 0.45, -0.9 + 0.55 * r] for r in range(4)], np.float32)
+            start = x + 0.22 * (len(hues) - 1) + 0.3  # the names start right of the last swatch, level with its row
+            where = np.array([[start + _label_width(note) / 2, -0.9 + 0.55 * r - LABEL_RISE]
+                              for r, note in enumerate(notes)], np.float32)
             rec.log(f"{LEGEND}/field/levels", rr.Points2D(where, radii=0.0, labels=notes, show_labels=True,
                                                           colors=[(200, 200, 200)] * 4), static=True)
             rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 0.8, -1.85]], labels="field of all agents", **title),
@@ -637,7 +718,8 @@ class Recorder:
         for name, value in values.items():
             value = float(value)
             self.rec.log(f"{METRICS}/{name}", rr.Scalars(value))
-            if name not in self._changed:
+            self._traces[name].add(step, value)
+            if name not in self._changed and step > 0:  # step 0 is the state before any step was made
                 first = self._first_values.setdefault(name, value)
                 if first != value and not (math.isnan(first) and math.isnan(value)):
                     self._changed.add(name)
@@ -647,7 +729,9 @@ class Recorder:
             self._csv_file.flush()
 
     def constant_metrics(self) -> tuple[str, ...]:
-        """The metrics logged with one value throughout so far (none before two rows of any metric)."""
+        """The metrics logged with one value at every step after step 0 so far (none before two rows of any metric).
+        Step 0, the initial state, does not count: a series of the step just made (``updated``, the fraction of
+        agents that moved) is 0 there and constant after."""
         return tuple(n for n in self.metrics if n in self._first_values and n not in self._changed)
 
     # ------------------------------------------------------------------ lifecycle
@@ -659,14 +743,17 @@ class Recorder:
     def close(self) -> None:
         """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent.
 
-        The layout is sent again where the run had series that never changed: they share one plot, out of the way
-        of the others (the viewer opens a file with the last layout it holds)."""
+        The layout is sent again once the run has more than one row of metrics: series that never changed share one
+        plot, out of the way of the others, and each legend goes where it covers the fewest points (the viewer opens
+        a file with the last layout it holds)."""
         if self._closed:
             return
         self._closed = True
         try:
             constant = self.constant_metrics()
-            if self.enabled and constant and len(constant) < len(self.metrics) and self._metric_rows > 1:
+            if len(constant) == len(self.metrics):  # nothing changed: no plot stands apart
+                constant = ()
+            if self.enabled and self._metric_rows > 1:
                 self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
             self.rec.disconnect()
         finally:
