@@ -13,7 +13,7 @@ import pytest
 
 from tflock.frame import HEADING_LEGEND, Frame, WorldSpec
 from tflock.record import Recorder
-from tflock.screenshot import missing_requirement, take_screenshots
+from tflock.screenshot import loaded_step, missing_requirement, take_screenshots
 
 REPO = Path(__file__).resolve().parents[1]
 BOX = 100.0
@@ -86,3 +86,14 @@ def test_view_web_picks_free_ports_and_prints_the_address(tmp_path: Path) -> Non
                 child.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 child.kill()
+
+
+def test_loaded_step_reads_the_viewers_step_timeline() -> None:
+    """The step the web viewer has reached, from its state (bytes taken from the viewer while a 10,000-step file
+    streamed in: the step timeline at 1180, next to the time timeline in nanoseconds, which does not count)."""
+    state = (b"\nKabout:recording?app_id=tflock\x121Recording:tflock:c56c\x1a\xbd\x01\n1Recording:tflock:c56c"
+             b"\x12\x14\n\x06\n\x04step\x10\x01\x1a\x03\x10\x9c\t\"\x03\x08\x9c\t\x12\x12\n\x06\n\x04time\x10\x02"
+             b"\x1a\x06\x10\x80\xec\xd6\xfa+\x1a\x0f\n\x06\n\x04step\x10\x01\x1a\x03\x08\x9c\t\"Kabout")
+    assert loaded_step(state) == 1180
+    assert loaded_step(state, "time") is None  # a duration timeline is no sequence
+    assert loaded_step(b"\nKabout:recording?app_id=tflock") is None  # nothing loaded yet

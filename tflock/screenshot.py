@@ -51,15 +51,20 @@ def missing_requirement() -> str | None:
 def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height: int = 1000, theme: str = "dark",
                      settle_s: float = 4.0, timeout_s: float = 180.0) -> list[Path]:
     """Serve `path` in the web viewer, open it in headless Chromium and save one PNG per entry of `shots`
-    (taken `settle_s` apart, after the viewer has loaded the recording: its time panel stops growing). Returns the
-    PNG paths; raises RuntimeError when a requirement is missing or the viewer does not come up."""
-    from tflock.record import serve_web
+    (taken `settle_s` apart, after the viewer has loaded the recording: its step timeline reaches the recording's
+    last frame and the picture stops changing, see :func:`_wait_until_loaded`). Returns the PNG paths; raises
+    RuntimeError when a requirement is missing or the viewer does not come up."""
+    from tflock.record import read_recording, serve_web
 
     reason = missing_requirement()
     if reason:
         raise RuntimeError(f"cannot take screenshots: {reason}")
     from playwright.sync_api import sync_playwright
 
+    try:
+        last_step = read_recording(Path(path)).last_step
+    except ValueError:  # not a tflock recording: wait for the picture alone
+        last_step = None
     console: list[str] = []
     with serve_web(Path(path)) as url, sync_playwright() as p:
         browser = p.chromium.launch(executable_path=find_chromium(), headless=True, args=list(CHROMIUM_ARGS))
@@ -68,7 +73,7 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
             page.on("console", lambda msg: console.append(f"{msg.type}: {msg.text}"))
             page.goto(url, timeout=timeout_s * 1000)
             page.wait_for_selector("canvas", timeout=timeout_s * 1000)
-            _wait_until_loaded(page, timeout_s)
+            _wait_until_loaded(page, timeout_s, last_step)
             for shot in shots:
                 time.sleep(settle_s)
                 shot.parent.mkdir(parents=True, exist_ok=True)
@@ -80,17 +85,66 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
     return shots
 
 
-def _wait_until_loaded(page, timeout_s: float, quiet_s: float = 6.0) -> None:
-    """Wait until the page has stopped receiving data: the viewer streams the file over gRPC, and while it loads
-    the canvas changes every frame. Taken as loaded once two screenshots `quiet_s` apart are identical (the
-    viewer follows the newest step while data arrives, then stops there), or after `timeout_s`. A screenshot that
-    does not come within what is left of `timeout_s` (software WebGL on a busy machine) counts as not loaded yet."""
+def _varint(buf: bytes, i: int) -> tuple[int, int]:
+    value, shift = 0, 0
+    while True:
+        byte = buf[i]
+        value |= (byte & 0x7F) << shift
+        i, shift = i + 1, shift + 7
+        if byte < 0x80:
+            return value, i
+
+
+def loaded_step(state: bytes, timeline: str = "step") -> int | None:
+    """The last time of a sequence `timeline` in the viewer's state (the bytes of the web viewer's
+    ``WebHandle.viewer_state()``, a protobuf message), or None where the state names no such timeline yet.
+
+    The state is no public API: it holds, per timeline, a message ``{1: {1: name}, 2: 1 (sequence), 3: {...times}}``;
+    the largest time in it is where the viewer is (it follows the newest data while a file streams in)."""
+    name = timeline.encode()
+    key = b"\n" + bytes([len(name) + 2]) + b"\n" + bytes([len(name)]) + name + b"\x10\x01\x1a"
+    found = None
+    start = state.find(key)
+    while start >= 0:
+        try:
+            size, i = _varint(state, start + len(key))
+            body, i = state[i:i + size], 0
+            while i < len(body):
+                tag, i = _varint(body, i)
+                if tag & 7 != 0:  # only varint fields hold times here
+                    break
+                value, i = _varint(body, i)
+                found = value if found is None else max(found, value)
+        except IndexError:
+            pass
+        start = state.find(key, start + 1)
+    return found
+
+
+def _wait_until_loaded(page, timeout_s: float, last_step: int | None = None, quiet_s: float = 6.0) -> None:
+    """Wait until the viewer has loaded the recording (or `timeout_s` passes): the viewer streams the file over
+    gRPC and follows the newest step, so it has loaded once its step timeline reaches `last_step` (the last frame;
+    read from the viewer's state, :func:`loaded_step`) and two screenshots `quiet_s` apart are identical. Without
+    a `last_step`, or where the state cannot be read, the identical screenshots alone count. A screenshot that does
+    not come within what is left of `timeout_s` (software WebGL on a busy machine) counts as not loaded yet.
+
+    A 10,000-step recording took minutes to load on a busy 2-core machine: a screenshot taken at a fixed time can
+    show a half-loaded run."""
+    from playwright.sync_api import Error as PlaywrightError
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     deadline = time.monotonic() + timeout_s
     last = None
     while time.monotonic() < deadline:
         time.sleep(quiet_s)
+        if last_step is not None:
+            try:
+                state = bytes(page.evaluate("() => Array.from(window._handle.viewer_state())"))
+                reached = loaded_step(state)
+            except PlaywrightError:  # no handle (another viewer build): the pictures decide
+                last_step = reached = None
+            if reached is not None and reached < last_step:
+                continue
         try:
             now = page.screenshot(timeout=max(1.0, deadline - time.monotonic()) * 1000)
         except PlaywrightTimeout:
