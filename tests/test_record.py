@@ -552,6 +552,38 @@ def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) ->
     assert legends["constant"]["PlotLegend:visible"] == [True]
 
 
+def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
+    """The colours view's names sit level with what they name and right of it: each category's name at its dot's
+    height (the viewer hangs a label below its point, so the point is raised by LABEL_RISE) starting right of the
+    dot; each field level's name at its row of swatches, starting right of the last swatch."""
+    from tflock.frame import ColorLegend
+    from tflock.record import LABEL_RISE, _label_width
+
+    legend = ColorLegend("agents: speed", entries=(("|v| = 0", (90, 90, 255)), ("|v| = 0.5", (40, 200, 90)),
+                                                   ("|v| >= 1", (255, 60, 60))))
+    path = tmp_path / "legend.rrd"
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS, path=path,
+                  legend=legend, field=True):
+        pass
+    batches = _chunks(path)
+    dots = np.array(_last(batches["/legend/entries"], "Points2D:positions"))
+    names = np.array(_last(batches["/legend/entries/names"], "Points2D:positions"))
+    labels = _last(batches["/legend/entries/names"], "Points2D:labels")
+    assert labels == [label for label, _ in legend.entries]
+    np.testing.assert_allclose(names[:, 1], dots[:, 1] - LABEL_RISE, atol=1e-6)
+    starts = names[:, 0] - np.array([_label_width(label) for label in labels]) / 2
+    assert np.all(starts > dots[:, 0])
+    swatches = np.array(_last(batches["/legend/field"], "Points2D:positions"))
+    levels = np.array(_last(batches["/legend/field/levels"], "Points2D:positions"))
+    level_labels = _last(batches["/legend/field/levels"], "Points2D:labels")
+    rows = np.unique(np.round(swatches[:, 1], 5))
+    np.testing.assert_allclose(np.sort(levels[:, 1] + LABEL_RISE), rows, atol=1e-5)
+    level_starts = levels[:, 0] - np.array([_label_width(label) for label in level_labels]) / 2
+    assert np.all(level_starts > swatches[:, 0].max())
+    ends = names[:, 0] + np.array([_label_width(label) for label in labels]) / 2
+    assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
+
+
 def test_legend_corner_avoids_the_data() -> None:
     """A plot's legend goes to the corner with the fewest of its points under it: a series that decays from the top
     left to the bottom right leaves the right top (the first choice) and the left bottom free; one that rises leaves
