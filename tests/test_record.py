@@ -584,6 +584,47 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
 
 
+def test_plots_paged_in_tabs_of_twelve(tmp_path: Path) -> None:
+    """More than PLOTS_PER_TAB plots go to a second tab, "metrics 2", so that each plot keeps a readable height (the
+    default Vicsek run has 13 plots: 15 rows of 50 px in one tab at 1280 x 800)."""
+    from tflock.record import PLOTS_PER_TAB
+
+    metrics = {f"m{k}": f"metric {k}" for k in range(PLOTS_PER_TAB + 2)}
+    path = tmp_path / "pages.rrd"
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path) as rec:
+        for step in range(3):
+            rec.log_metrics(step, {name: float(step * k) for k, name in enumerate(metrics)})
+    names = _layout_names(path)
+    assert "metrics" in names and "metrics 2" in names and "metrics 3" not in names
+    assert all(f"m{k}" in names for k in range(1, PLOTS_PER_TAB + 2)) and "constant: m0" in names
+
+
+def test_3d_layout_puts_the_field_projections_under_the_world(tmp_path: Path) -> None:
+    """3D with the field: the three projections in a row under the 3D view, the colour legend alone above the plots
+    (beside three projections it was squeezed to a quarter of the column, its labels over each other)."""
+    from tflock.frame import HEADING_LEGEND
+
+    with Recorder(model="m", config_toml="", world=WorldSpec(3, "open", 5.0), metrics=METRICS,
+                  path=tmp_path / "3d.rrd", legend=HEADING_LEGEND, field=True) as rec:
+        left, right = rec.blueprint().root_container.contents
+    world, projections = left.contents
+    assert world.name == "world" and [v.name for v in projections.contents] == ["field xy", "field xz", "field yz"]
+    legend, tabs = right.contents
+    assert legend.name == "colours" and type(tabs).__name__ == "Tabs"
+
+
+def _layout_names(path: Path) -> list[str]:
+    """The names of the views and containers of the last layout in a recording."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    layouts = {store: [c.to_record_batch().to_pylist() for c in reader.stream(store=store)]
+               for store in reader.blueprints()}
+    last = max(layouts, key=lambda store: max(row["log_time"] for rows in layouts[store] for row in rows))
+    return [row[key][0] for rows in layouts[last] for row in rows for key in row
+            if key.endswith(":display_name") and row[key]]
+
+
 def test_legend_corner_avoids_the_data() -> None:
     """A plot's legend goes to the corner with the fewest of its points under it: a series that decays from the top
     left to the bottom right leaves the right top (the first choice) and the left bottom free; one that rises leaves

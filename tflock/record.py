@@ -204,6 +204,8 @@ def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
 #: a 10,000-step Tanner recording opened in the web viewer showed steps 8900-10300 in every plot.
 WHOLE_RUN = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infinite(),
                                                  end=rr.TimeRangeBoundary.infinite()))
+#: plots in a tab at most (6 rows of 2; about 90 px a plot at 1280 x 800): more go to a tab "metrics 2"
+PLOTS_PER_TAB = 12
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
 #: points kept of each series to place its plot's legend (every other point is dropped when more come)
@@ -373,9 +375,10 @@ class Recorder:
 
     # ------------------------------------------------------------------ layout
     def blueprint(self, constant: tuple[str, ...] = ()) -> rrb.Blueprint:
-        """The default layout: the world view largest on the left; on the right the colour legend (and in 3D the
-        field's projections) above tabs of the metric plots (the `constant` series in one plot of their own), the
-        profiles' bar charts, the about document and the config. Side panels collapsed, the time panel a single bar."""
+        """The default layout: the world view largest on the left (in 3D above the field's three projections); on
+        the right the colour legend above tabs of the metric plots (at most :data:`PLOTS_PER_TAB` a tab; the
+        `constant` series in one plot of their own, last), the profiles' bar charts, the about document and the
+        config. Side panels collapsed, the time panel a single bar."""
         world = self.world
         if world.dim == 2:
             bounds = None
@@ -387,21 +390,24 @@ class Recorder:
                                                      visual_bounds=bounds)
         else:
             world_view = rrb.Spatial3DView(name="world", origin=f"/{WORLD}")
-        top: list[rrb.View] = [rrb.Spatial2DView(name="colours", origin=f"/{LEGEND}")] if self._has_legend() else []
-        if self.field and world.dim == 3:
-            top += [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
-                                      contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
+        left: rrb.Container | rrb.View = world_view
+        if self.field and world.dim == 3:  # the projections in a row under the 3D view
+            projections = [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
+                                             contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
+            left = rrb.Vertical(world_view, rrb.Horizontal(*projections), row_shares=[3, 1])
         plots = self._plots(constant)
-        metrics = (rrb.Grid(*plots, grid_columns=2 if len(plots) > 4 else 1, name="metrics") if len(plots) > 1
-                   else plots[0] if plots else None)
+        pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
+        metrics = [rrb.Grid(*page, grid_columns=2 if len(page) > 4 else 1,
+                            name="metrics" if k == 0 else f"metrics {k + 1}") if len(page) > 1 else page[0]
+                   for k, page in enumerate(pages)]
         profiles = [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
-        tabs = [v for v in (metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
-                            rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")) if v is not None]
+        tabs = [*metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
+                rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")]
         right: rrb.Container | rrb.View = rrb.Tabs(*tabs, active_tab=0)
-        if top:
-            right = rrb.Vertical(rrb.Horizontal(*top), right, row_shares=[1, 3 if len(top) == 1 else 2])
+        if self._has_legend():
+            right = rrb.Vertical(rrb.Spatial2DView(name="colours", origin=f"/{LEGEND}"), right, row_shares=[1, 3])
         return rrb.Blueprint(
-            rrb.Horizontal(world_view, right, column_shares=[3, 2]),
+            rrb.Horizontal(left, right, column_shares=[3, 2]),
             rrb.BlueprintPanel(state="collapsed"),
             rrb.SelectionPanel(state="collapsed"),
             rrb.TimePanel(state="collapsed", timeline="step"),
