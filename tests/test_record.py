@@ -547,9 +547,12 @@ def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) ->
         for step in range(4):
             rec.log_metrics(step, {"order": 0.1 * step, "updated": float(step > 0), "components": 1.0})
         assert rec.constant_metrics() == ("updated", "components")
+        assert [plot.name for plot in rec._plots(rec.constant_metrics())] == ["order", "constant"]  # constant last
     legends = _plot_legends(path)
-    assert list(legends) == ["order", "constant"]
+    assert sorted(legends) == ["constant", "order"]
     assert legends["constant"]["PlotLegend:visible"] == [True]
+    # in the constant plot each series goes by its full name (valency_min's short name "min" is its group's)
+    assert {"updated", "components"} <= set(_layout_names(path, "SeriesLines:names"))
 
 
 def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
@@ -613,8 +616,9 @@ def test_3d_layout_puts_the_field_projections_under_the_world(tmp_path: Path) ->
     assert legend.name == "colours" and type(tabs).__name__ == "Tabs"
 
 
-def _layout_names(path: Path) -> list[str]:
-    """The names of the views and containers of the last layout in a recording."""
+def _layout_names(path: Path, suffix: str = ":display_name") -> list[str]:
+    """The names of the views and containers of the last layout in a recording (or other components of it whose
+    column ends with `suffix`)."""
     from rerun.chunk import RrdReader
 
     reader = RrdReader(path)
@@ -622,7 +626,7 @@ def _layout_names(path: Path) -> list[str]:
                for store in reader.blueprints()}
     last = max(layouts, key=lambda store: max(row["log_time"] for rows in layouts[store] for row in rows))
     return [row[key][0] for rows in layouts[last] for row in rows for key in row
-            if key.endswith(":display_name") and row[key]]
+            if key.endswith(suffix) and row[key]]
 
 
 def test_legend_corner_avoids_the_data() -> None:

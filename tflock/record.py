@@ -419,11 +419,16 @@ class Recorder:
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
-        plots = [(group, [m for m, _ in members]) for group, members in metric_groups(varying).items()]
-        if constant:  # one: named in the title; more: named in the legend (a long title is cut off)
-            plots.append(("constant" + (f": {constant[0]}" if len(constant) == 1 else ""), list(constant)))
-        return [rrb.TimeSeriesView(name=name, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in members],
-                                   plot_legend=self._legend(members), axis_x=WHOLE_RUN) for name, members in plots]
+        views = [rrb.TimeSeriesView(name=group, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m, _ in members],
+                                    plot_legend=self._legend([m for m, _ in members]), axis_x=WHOLE_RUN)
+                 for group, members in metric_groups(varying).items()]
+        if constant:  # one: named in the title; more: named in the legend (a long title is cut off), by their full
+            # names: a series' short name is that of its group's plot ("min" of valency_min)
+            views.append(rrb.TimeSeriesView(
+                name="constant" + (f": {constant[0]}" if len(constant) == 1 else ""), origin=f"/{METRICS}",
+                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant)),
+                axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m) for m in constant}))
+        return views
 
     def _legend(self, members: list[str]) -> rrb.PlotLegend:
         """A plot's legend: shown for 2 to 6 series, in the corner where it covers the fewest of their points so far
