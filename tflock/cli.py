@@ -224,10 +224,10 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     table.add_column()
     table.add_row("agents", f"{cfg.params.n:,}")
     table.add_row("engine", simulation.engine.describe())
-    metrics = simulation.metrics()
+    last = simulation.last_metrics() or {}
     for name in simulation.model.metric_descriptions:
-        if len(metrics[name]):
-            table.add_row(name, f"{metrics[name][-1]:.6g}")
+        if name in last:
+            table.add_row(name, f"{last[name]:.6g}")
     table.add_row("steps/s", f"{rate:,.1f} (after the first step)")
     table.add_row("agent-steps/s", f"{rate * cfg.params.n:,.3g}")
     table.add_row("start-up", f"{t_ready - t_start:.2f} s (Taichi init, first metrics; compile included)")

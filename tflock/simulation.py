@@ -36,6 +36,7 @@ from tflock.config import (
     tomllib,
 )
 from tflock.engine import EngineInfo, init_engine
+from tflock.metric_rows import MetricRows
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
 from tflock.outputs import Outputs, claim, first_free
@@ -222,7 +223,7 @@ class Simulation:
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
         with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
             self.model = model_class(config.model)(config.params, config.seed, self.engine)
-        self._rows: list[dict[str, float]] = []
+        self._table = MetricRows(["step", "time", *self.model.metric_descriptions])
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self._field_size = field_pixels(config.params.n, len(self._selected), config.log.field)
         self.files: list[Path] = []
@@ -275,7 +276,7 @@ class Simulation:
         t = self.model.step_index
         if force or self._metrics_due(t):
             values = self.model.metrics()
-            self._rows.append({"step": float(t), "time": t * self.model.dt, **values})
+            self._table.append({"step": float(t), "time": t * self.model.dt, **values})
             if self.recorder is not None:
                 self.recorder.log_metrics(t, values)
         if self.recorder is not None and (force or self._frame_due(t)):
@@ -398,16 +399,22 @@ class Simulation:
         return {**self.model.state(), "step": self.model.step_index}
 
     def metrics(self) -> dict[str, np.ndarray]:
-        """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``."""
-        names = ["step", "time", *self.model.metric_descriptions]
-        return {name: np.array([row[name] for row in self._rows]) for name in names}
+        """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``.
+
+        The run keeps its table in bounded memory (one block of rows; the rest in a temporary file, see
+        :mod:`tflock.metric_rows`): this reads it back, so its arrays take memory only once asked for."""
+        return self._table.columns()
+
+    def last_metrics(self) -> dict[str, float] | None:
+        """The last row of the metrics table (``step``, ``time`` and one value per metric), or None before any."""
+        return self._table.last()
 
     def save_checkpoint(self, path: str | Path) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
         atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        table = self.metrics()
+        table = self._table.columns(copy=False)  # views of the table file: written in chunks, not held in memory
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
         arrays.update({f"metrics__{k}": v for k, v in table.items()})
         if self._lyapunov_start is not None:
@@ -429,8 +436,7 @@ class Simulation:
         except ValueError as e:
             raise ConfigError(f"--resume: {e}") from None
         columns = {k.removeprefix("metrics__"): v for k, v in checkpoint.items() if k.startswith("metrics__")}
-        self._rows = [{name: float(column[i]) for name, column in columns.items()}
-                      for i in range(len(columns["step"]))]
+        self._table.extend(columns)
         self.recording_id = str(checkpoint["recording_id"])
 
     def close(self) -> None:
