@@ -44,6 +44,10 @@ from tflock.preflight import check_memory
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
 
+#: Simulation.step hands the model at most this many steps at once, and at most this many agent-steps: a stop
+#: request (Ctrl-C) is seen between two such runs of steps
+CHUNK_STEPS = 256
+CHUNK_AGENT_STEPS = 1 << 20
 #: the guard keeps a host copy of a good state when the time since the last copy is this many times what the copy
 #: took: copying costs about 0.5 % of the run, and a replay after a fault covers only the steps since the copy
 GOOD_COPY_RATIO = 200
@@ -283,13 +287,22 @@ class Simulation:
             self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges, self._field_size))
 
     def step(self, steps: int = 1, progress: Callable[[int], None] | None = None) -> None:
-        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.
-        Raises :class:`NumericalFaultError` when the state becomes non-finite."""
-        for _ in range(steps):
-            if self._frame_due(self.model.step_index + 1):
-                self.model.draw_next(self._selected)
-            self.model.advance(1)
-            t = self.model.step_index
+        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each run of
+        steps between two observed steps (at most :data:`CHUNK_STEPS` steps). Raises :class:`NumericalFaultError`
+        when the state becomes non-finite.
+
+        The steps between two observed steps (a metrics row, a frame, a checkpoint, the last step) go to the model
+        as one ``advance(k)``, which a model may run in fewer launches than k single steps (the trajectory is the
+        same bit for bit); the guard checks the state at the observed steps, as it always has."""
+        end = self.model.step_index + steps
+        while self.model.step_index < end:
+            t = self._next_stop(self.model.step_index, end)
+            if self._frame_due(t):
+                self.model.advance(t - 1 - self.model.step_index)
+                self.model.draw_next(self._selected)  # announces the state of the step after this one
+                self.model.advance(1)
+            else:
+                self.model.advance(t - self.model.step_index)
             last = t == self.config.steps
             checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
             full = last or checkpoint or self._metrics_due(t)  # where the stability guard's Lyapunov test runs
@@ -300,6 +313,22 @@ class Simulation:
                 self.save_checkpoint(self.checkpoint_path)
             if progress is not None:
                 progress(t)
+
+    def _next_stop(self, t0: int, end: int) -> int:
+        """The first step after `t0`, at most `end`, at which something is observed (metrics, a frame, a checkpoint,
+        the run's last step), or after :data:`CHUNK_STEPS` steps (:data:`CHUNK_AGENT_STEPS` agent-steps), so that a
+        stop request is seen soon."""
+        log = self.config.log
+        n = self.config.params.n
+        stops = [end, t0 + max(1, min(CHUNK_STEPS, CHUNK_AGENT_STEPS // max(1, n))),
+                 (t0 // log.metrics_every + 1) * log.metrics_every]
+        if t0 < self.config.steps:
+            stops.append(self.config.steps)
+        if self.recorder is not None:
+            stops.append((t0 // log.every + 1) * log.every)
+        if self.checkpoint_every and self.checkpoint_path:
+            stops.append((t0 // self.checkpoint_every + 1) * self.checkpoint_every)
+        return min(stops)
 
     # ------------------------------------------------------------------ the non-finite guard
     def _refuse_non_finite_start(self) -> None:
