@@ -125,3 +125,16 @@ def wait_for_rows(proc: Any, table: Path, rows: int, timeout: float = 120.0) -> 
         assert proc.poll() is None, f"sim exited early with {proc.returncode}"
         assert time.monotonic() < deadline, f"{table} did not reach {rows} rows within {timeout} s"
         time.sleep(0.05)
+
+
+def assert_same_run(a: Any, b: Any) -> None:
+    """Two Simulations hold the same state and the same metrics table, bit for bit (nan where both have nan)."""
+    import numpy as np
+
+    sa, sb = a.state(), b.state()
+    for key in sa:
+        assert np.array_equal(sa[key], sb[key]), key
+    ma, mb = a.metrics(), b.metrics()
+    assert list(ma) == list(mb)
+    for key in ma:
+        assert np.array_equal(ma[key], mb[key], equal_nan=True), key

@@ -46,9 +46,23 @@ def test_bench_writes_json_csv_and_plot(tmp_path):
     assert "agent-steps/s" in proc.stdout and "run ms/step" in proc.stdout and "logged run" in proc.stdout
 
 
+def test_small_potential_case_has_its_numpy_peer_and_cadence(tmp_path):
+    """--metrics-every sets the timed runs' cadence (kept with the case); potential's peer is its NumPy step."""
+    prefix = tmp_path / "small"
+    proc = subprocess.run([sys.executable, "-m", "tflock", "bench", "--models", "potential", "--sizes", "20",
+                           "--states", "uniform", "--repeats", "2", "--metrics-every", "5", "--out", str(prefix)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (result,) = json.loads(prefix.with_suffix(".json").read_text())["results"]
+    assert result["case"]["metrics_every"] == 5 and set(result["peers"]) == {"numpy_reference"}
+    peer = result["peers"]["numpy_reference"]
+    assert peer["ms"] > 0 and peer["ratio"] == pytest.approx(peer["ms"] / result["ms_median"])
+
+
 @pytest.mark.parametrize("args,key", [(["--sizes", "0"], "--sizes"), (["--models", "boids"], "--models"),
                                       (["--states", "hot"], "--states"), (["--set", "params.boxx=3"], "params.boxx"),
-                                      (["--set", "params.n=3"], "--set"), (["--set", "engine.threads=1"], "--set")])
+                                      (["--set", "params.n=3"], "--set"), (["--set", "engine.threads=1"], "--set"),
+                                      (["--metrics-every", "-1"], "--metrics-every")])
 def test_bench_bad_input_is_one_line(args, key):
     proc = subprocess.run([sys.executable, "-m", "tflock", "bench", *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2

@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import assert_same_run
 from rerun.chunk import RrdReader
 
 from tflock.record import read_recording, verify_recording
@@ -27,12 +28,7 @@ def test_resumed_run_is_bit_identical(make_sim, tmp_path, extra):
     resumed = Simulation(resume=path)
     assert resumed.step_index == 17
     resumed.run()
-    a, b = straight.state(), resumed.state()
-    for key in a:
-        assert np.array_equal(a[key], b[key]), key
-    ma, mb = straight.metrics(), resumed.metrics()
-    for key in ma:
-        assert np.array_equal(ma[key], mb[key]), key
+    assert_same_run(straight, resumed)
 
 
 @pytest.mark.parametrize("model,params", [

@@ -12,9 +12,10 @@ peak resident memory and the model's device bytes per agent.
 
 Peers run in the same subprocess, on the same state, right after tflock's timing, and are reported as times and
 as ratios to tflock (absolute times drift on shared machines): the plain NumPy reference (O(N^2), where it
-takes under ~10 s a step) and, for Vicsek when scipy is installed, a cKDTree + sparse-matrix step written the way
-the common minimal scripts do it, and when numba is installed, a parallel Numba cell-list step written the usual
-way (`tflock.peers.numba_vicsek`; its first call, JIT compile or cache load, is reported apart as first_call_s).
+takes under ~10 s a step; Vicsek and potential) and, for Vicsek when scipy is installed, a cKDTree +
+sparse-matrix step written the way the common minimal scripts do it, and when numba is installed, a parallel
+Numba cell-list step written the usual way (`tflock.peers.numba_vicsek`; its first call, JIT compile or cache
+load, is reported apart as first_call_s).
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ class BenchCase:
     log_agents: int = 50_000
     peers: bool = True
     overrides: tuple[str, ...] = ()  # "params.key=value" applied to the default config before N is set
+    metrics_every: int = 0  # the metrics cadence of the timed runs (0: the model's default, log.metrics_every)
 
 
 @dataclass
@@ -223,7 +225,10 @@ def _median_ms(step: Callable[[], object], repeats: int, budget_ms: float = math
 
 def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
                 threads: int = 0) -> dict[str, dict[str, float]]:
-    """Peers on the model's current state (Vicsek only: the references of other models come with them)."""
+    """Peers on the model's current state: for Vicsek the NumPy reference, cKDTree and Numba steps; for the
+    potential model its NumPy reference step (the other models' references come with them)."""
+    if model.name == "potential":
+        return _time_potential_reference(model, ms_tflock)
     if model.name != "vicsek":
         return {}
     from tflock import reference
@@ -242,6 +247,19 @@ def _time_peers(model: Any, ms_tflock: float, mean_neighbors: float,
         peers["ckdtree_sparse"] = {"ms": ms, "ratio": ms / ms_tflock}
     peers.update(_time_numba_peer(state, params, ms_tflock, mean_neighbors, threads))
     return peers
+
+
+def _time_potential_reference(model: Any, ms_tflock: float) -> dict[str, dict[str, float]]:
+    """The plain NumPy step of the potential model (:func:`tflock.reference.potential.potential_step`, O(N^2),
+    in the run's precision) on the model's state, where N <= 4000."""
+    from tflock.reference.potential import graph_edges, potential_step
+
+    if model.params.n > 4000:
+        return {}
+    state = model.state()
+    edges = graph_edges(model.params, model.seed)
+    ms = _median_ms(lambda: potential_step(state["x"], state["v"], model.params, edges), 5, budget_ms=3e3)
+    return {"numpy_reference": {"ms": ms, "ratio": ms / ms_tflock}}
 
 
 def _written(sim: Any) -> None:
@@ -268,8 +286,8 @@ class Turns:
 
 def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) -> Turns:
     """Plain steps against runs of as many steps as ``tflock sim`` runs them: ``Simulation.step`` with metrics
-    every `metrics_every` steps (the model's default) and the non-finite guard, and with `log` a frame every step
-    (the frame, its edges, Rerun's encoding and writing).
+    every `metrics_every` steps (the case's cadence, by default the model's) and the non-finite guard, and with
+    `log` a frame every step (the frame, its edges, Rerun's encoding and writing).
 
     ``LOG_TURNS`` turns, each `repeats` plain steps, a run without frames and, with `log`, a logged run, all from
     the case's state (every turn times the same steps: the workload stays the state's). A run is timed whole, until
@@ -319,7 +337,7 @@ def run_case(case: BenchCase) -> BenchResult:
     from tflock.config import load_config
     from tflock.simulation import Simulation
 
-    default_metrics_every = load_config(model=case.model).log.metrics_every
+    metrics_every = case.metrics_every or load_config(model=case.model).log.metrics_every
     result = BenchResult(case=case)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -333,7 +351,7 @@ def run_case(case: BenchCase) -> BenchResult:
         if case.state == "developed":
             model.advance(case.develop_steps)
             ti.sync()  # a GPU runs launches asynchronously: the first timed step must not wait for these
-        turns = _plain_and_run_steps(sim, case.repeats, default_metrics_every, case.log)
+        turns = _plain_and_run_steps(sim, case.repeats, metrics_every, case.log)
         steps = turns.plain
         result.run_ms_median, result.run_overhead = turns.run, turns.run_overhead
         result.run_ms_min, result.run_ms_max = turns.run_range

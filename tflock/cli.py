@@ -224,10 +224,10 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     table.add_column()
     table.add_row("agents", f"{cfg.params.n:,}")
     table.add_row("engine", simulation.engine.describe())
-    metrics = simulation.metrics()
+    last = simulation.last_metrics() or {}
     for name in simulation.model.metric_descriptions:
-        if len(metrics[name]):
-            table.add_row(name, f"{metrics[name][-1]:.6g}")
+        if name in last:
+            table.add_row(name, f"{last[name]:.6g}")
     table.add_row("steps/s", f"{rate:,.1f} (after the first step)")
     table.add_row("agent-steps/s", f"{rate * cfg.params.n:,.3g}")
     table.add_row("start-up", f"{t_ready - t_start:.2f} s (Taichi init, first metrics; compile included)")
@@ -411,6 +411,8 @@ def bench(
     set_: Annotated[list[str] | None, typer.Option("--set", "-s", help=(
         "Override a model parameter of the default config, e.g. params.box=240 (lengths then scale with N to "
         "keep its density)."))] = None,
+    metrics_every: Annotated[int, typer.Option(help=(
+        "Metrics cadence of the timed runs (run ms/step), >= 1; 0 = the model's default."))] = 0,
 ) -> None:
     """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under results/bench/."""
     from tflock.bench import STATES, BenchCase, cases, default_out, run_in_subprocess, write_results
@@ -426,6 +428,8 @@ def bench(
         fail(f"--arch / --precision: allowed cpu|cuda|vulkan|auto and f32|f64, got {arch!r} / {precision!r}")
     if repeats < 1 or develop_steps < 0:
         fail("--repeats must be >= 1 and --develop-steps >= 0")
+    if metrics_every < 0:
+        fail(f"--metrics-every: must be >= 1 (or 0: the model's default), got {metrics_every}")
     overrides = tuple(set_ or ())
     for expr in overrides:
         if not expr.startswith("params.") or expr.startswith("params.n="):
@@ -434,7 +438,7 @@ def bench(
     for t in _int_list(threads, "threads") if threads != "0" else [0]:
         todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
                       repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers,
-                      overrides=overrides)
+                      overrides=overrides, metrics_every=metrics_every)
     prefix = prefix or default_out()
     _refuse_bench_cases(todo, prefix)
     results = []

@@ -21,9 +21,11 @@ import taichi as ti  # noqa: E402
 
 from tflock.taichi_frontend import memoize_position_messages  # noqa: E402
 from tflock.taichi_host import copy_on_host  # noqa: E402
+from tflock.taichi_launch import fast_launches  # noqa: E402
 
 memoize_position_messages()
 copy_on_host()
+fast_launches()
 
 ARCHES = ("cpu", "cuda", "vulkan", "auto")
 PRECISIONS = ("f32", "f64")

@@ -37,8 +37,8 @@ def run_replicas(config: Config, replicas: int,
                  progress: Callable[[int], None] | None = None) -> list[MetricsTable]:
     """Metrics tables of replicas 0 .. replicas - 1 of `config`, batched where the model supports it.
 
-    ``progress(done)``, if given, is called after every step with the replica-steps done so far (out of
-    ``replicas * config.steps``).
+    ``progress(done)``, if given, is called as the steps complete (a lone run: at each observed step, see
+    :meth:`tflock.simulation.Simulation.step`) with the replica-steps done so far (out of ``replicas * config.steps``).
     """
     cls = model_class(config.model)
     if not cls.can_batch(config.params):

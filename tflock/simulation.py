@@ -36,6 +36,7 @@ from tflock.config import (
     tomllib,
 )
 from tflock.engine import EngineInfo, init_engine
+from tflock.metric_rows import MetricRows
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
 from tflock.outputs import Outputs, claim, first_free
@@ -43,6 +44,10 @@ from tflock.preflight import check_memory
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
 
+#: Simulation.step hands the model at most this many steps at once, and at most this many agent-steps: a stop
+#: request (Ctrl-C) is seen between two such runs of steps
+CHUNK_STEPS = 256
+CHUNK_AGENT_STEPS = 1 << 20
 #: the guard keeps a host copy of a good state when the time since the last copy is this many times what the copy
 #: took: copying costs about 0.5 % of the run, and a replay after a fault covers only the steps since the copy
 GOOD_COPY_RATIO = 200
@@ -222,7 +227,7 @@ class Simulation:
         self.engine: EngineInfo = init_engine(config.engine.arch, config.engine.threads, config.engine.precision)
         with np.errstate(over="ignore", invalid="ignore"):  # values beyond the float range: the guard refuses them
             self.model = model_class(config.model)(config.params, config.seed, self.engine)
-        self._rows: list[dict[str, float]] = []
+        self._table = MetricRows(["step", "time", *self.model.metric_descriptions])
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self._field_size = field_pixels(config.params.n, len(self._selected), config.log.field)
         self.files: list[Path] = []
@@ -275,20 +280,29 @@ class Simulation:
         t = self.model.step_index
         if force or self._metrics_due(t):
             values = self.model.metrics()
-            self._rows.append({"step": float(t), "time": t * self.model.dt, **values})
+            self._table.append({"step": float(t), "time": t * self.model.dt, **values})
             if self.recorder is not None:
                 self.recorder.log_metrics(t, values)
         if self.recorder is not None and (force or self._frame_due(t)):
             self.recorder.log_frame(t, self.model.frame(self._selected, self.config.log.max_edges, self._field_size))
 
     def step(self, steps: int = 1, progress: Callable[[int], None] | None = None) -> None:
-        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each.
-        Raises :class:`NumericalFaultError` when the state becomes non-finite."""
-        for _ in range(steps):
-            if self._frame_due(self.model.step_index + 1):
-                self.model.draw_next(self._selected)
-            self.model.advance(1)
-            t = self.model.step_index
+        """Advance `steps` steps, taking metrics and frames at their cadences; `progress(step)` after each run of
+        steps between two observed steps (at most :data:`CHUNK_STEPS` steps). Raises :class:`NumericalFaultError`
+        when the state becomes non-finite.
+
+        The steps between two observed steps (a metrics row, a frame, a checkpoint, the last step) go to the model
+        as one ``advance(k)``, which a model may run in fewer launches than k single steps (the trajectory is the
+        same bit for bit); the guard checks the state at the observed steps, as it always has."""
+        end = self.model.step_index + steps
+        while self.model.step_index < end:
+            t = self._next_stop(self.model.step_index, end)
+            if self._frame_due(t):
+                self.model.advance(t - 1 - self.model.step_index)
+                self.model.draw_next(self._selected)  # announces the state of the step after this one
+                self.model.advance(1)
+            else:
+                self.model.advance(t - self.model.step_index)
             last = t == self.config.steps
             checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
             full = last or checkpoint or self._metrics_due(t)  # where the stability guard's Lyapunov test runs
@@ -299,6 +313,22 @@ class Simulation:
                 self.save_checkpoint(self.checkpoint_path)
             if progress is not None:
                 progress(t)
+
+    def _next_stop(self, t0: int, end: int) -> int:
+        """The first step after `t0`, at most `end`, at which something is observed (metrics, a frame, a checkpoint,
+        the run's last step), or after :data:`CHUNK_STEPS` steps (:data:`CHUNK_AGENT_STEPS` agent-steps), so that a
+        stop request is seen soon."""
+        log = self.config.log
+        n = self.config.params.n
+        stops = [end, t0 + max(1, min(CHUNK_STEPS, CHUNK_AGENT_STEPS // max(1, n))),
+                 (t0 // log.metrics_every + 1) * log.metrics_every]
+        if t0 < self.config.steps:
+            stops.append(self.config.steps)
+        if self.recorder is not None:
+            stops.append((t0 // log.every + 1) * log.every)
+        if self.checkpoint_every and self.checkpoint_path:
+            stops.append((t0 // self.checkpoint_every + 1) * self.checkpoint_every)
+        return min(stops)
 
     # ------------------------------------------------------------------ the non-finite guard
     def _refuse_non_finite_start(self) -> None:
@@ -398,16 +428,22 @@ class Simulation:
         return {**self.model.state(), "step": self.model.step_index}
 
     def metrics(self) -> dict[str, np.ndarray]:
-        """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``."""
-        names = ["step", "time", *self.model.metric_descriptions]
-        return {name: np.array([row[name] for row in self._rows]) for name in names}
+        """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``.
+
+        The run keeps its table in bounded memory (one block of rows; the rest in a temporary file, see
+        :mod:`tflock.metric_rows`): this reads it back, so its arrays take memory only once asked for."""
+        return self._table.columns()
+
+    def last_metrics(self) -> dict[str, float] | None:
+        """The last row of the metrics table (``step``, ``time`` and one value per metric), or None before any."""
+        return self._table.last()
 
     def save_checkpoint(self, path: str | Path) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
         atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        table = self.metrics()
+        table = self._table.columns(copy=False)  # views of the table file: written in chunks, not held in memory
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
         arrays.update({f"metrics__{k}": v for k, v in table.items()})
         if self._lyapunov_start is not None:
@@ -429,8 +465,7 @@ class Simulation:
         except ValueError as e:
             raise ConfigError(f"--resume: {e}") from None
         columns = {k.removeprefix("metrics__"): v for k, v in checkpoint.items() if k.startswith("metrics__")}
-        self._rows = [{name: float(column[i]) for name, column in columns.items()}
-                      for i in range(len(columns["step"]))]
+        self._table.extend(columns)
         self.recording_id = str(checkpoint["recording_id"])
 
     def close(self) -> None:

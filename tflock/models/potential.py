@@ -56,6 +56,8 @@ from tflock.neighbors import (
 )
 from tflock.taichi_host import host_view
 
+#: a fixed-graph swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch
+FUSED_MAX_N = 4096
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
@@ -230,22 +232,46 @@ def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: 
                             drawn[1, r, a] = v[a, k]
 
 
+@ti.func
+def _fixed_agent(i, d2, dt, dim: ti.template(), offsets: ti.template(), neighbours: ti.template(),
+                 pos: ti.template(), vel: ti.template(), pos_out: ti.template(), vel_out: ti.template()):
+    """Agent i's semi-implicit Euler step on the fixed graph (eq. 3): from (pos, vel) into (pos_out, vel_out)."""
+    p = load_vec(pos, i, dim)
+    v = load_vec(vel, i, dim)
+    u = ti.Vector([0.0] * dim)
+    for k in range(offsets[i], offsets[i + 1]):
+        j = neighbours[k]
+        u += _pair_acceleration(p, v, load_vec(pos, j, dim), load_vec(vel, j, dim), d2)
+    v_new = v + dt * u
+    p_new = p + dt * v_new
+    for a in ti.static(range(dim)):
+        vel_out[a, i] = v_new[a]
+        pos_out[a, i] = p_new[a]
+
+
 @ti.kernel
 def _step_fixed(n: ti.i32, d2: float, dt: float, dim: ti.template(), offsets: ti.types.ndarray(),
                 neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
                 pos_out: ti.types.ndarray(), vel_out: ti.types.ndarray()):
     for i in range(n):
-        p = load_vec(pos, i, dim)
-        v = load_vec(vel, i, dim)
-        u = ti.Vector([0.0] * dim)
-        for k in range(offsets[i], offsets[i + 1]):
-            j = neighbours[k]
-            u += _pair_acceleration(p, v, load_vec(pos, j, dim), load_vec(vel, j, dim), d2)
-        v_new = v + dt * u
-        p_new = p + dt * v_new
-        for a in ti.static(range(dim)):
-            vel_out[a, i] = v_new[a]
-            pos_out[a, i] = p_new[a]
+        _fixed_agent(i, d2, dt, dim, offsets, neighbours, pos, vel, pos_out, vel_out)
+
+
+@ti.kernel
+def _steps_fixed(steps: ti.i32, n: ti.i32, d2: float, dt: float, dim: ti.template(), offsets: ti.types.ndarray(),
+                 neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+                 pos_out: ti.types.ndarray(), vel_out: ti.types.ndarray()):
+    """`steps` steps of :func:`_step_fixed` in one launch, on one thread (a small swarm: a launch costs more than
+    its arithmetic): even steps go from (pos, vel) to (pos_out, vel_out), odd steps back, so after an odd number
+    of steps the new state is in the `_out` arrays, as after as many single steps that swap the buffers."""
+    ti.loop_config(serialize=True)
+    for step in range(steps):
+        if step % 2 == 0:
+            for i in range(n):
+                _fixed_agent(i, d2, dt, dim, offsets, neighbours, pos, vel, pos_out, vel_out)
+        else:
+            for i in range(n):
+                _fixed_agent(i, d2, dt, dim, offsets, neighbours, pos_out, vel_out, pos, vel)
 
 
 @ti.kernel
@@ -426,9 +452,19 @@ class Potential(GridModel):
         return {"x": x, "v": v}
 
     def advance(self, steps: int) -> None:
+        """Run `steps` steps: on a fixed graph with at most :data:`FUSED_MAX_N` agents all of them in one launch
+        (:func:`_steps_fixed`), else one step (a few launches) at a time."""
         p = self.params
         d2 = p.desired_distance**2
         grid = self.grid
+        if not self.switching and steps > 1 and p.n <= FUSED_MAX_N:
+            _steps_fixed(steps, p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
+                         self.pos_next, self.scratch)
+            if steps % 2:
+                self.pos, self.pos_next = self.pos_next, self.pos
+                self.vel, self.scratch = self.scratch, self.vel
+            self.step_index += steps
+            return
         for _ in range(steps):
             if self.switching:
                 self._ensure_grid()

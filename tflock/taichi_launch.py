@@ -1,0 +1,124 @@
+"""A shorter path from Python to a compiled Taichi 1.7 kernel, for small swarms' many small launches.
+
+Each call of a kernel makes Taichi's Python front end work out, from every argument, which compiled instance to
+run (``TaichiCallableTemplateMapper.extract``: a chain of ``isinstance`` tests per argument) and then set every
+argument through a general recursive function (``Kernel.launch_kernel``). For tflock's step kernels (tens of
+ndarrays and scalars each) that costs about 5-10 us an ndarray argument, 100-150 us a launch on this machine,
+several times the arithmetic of a step at N <= 1000 (docs/performance.md, "Small swarms").
+
+:func:`fast_launches` keeps, per kernel, a *plan* for each signature it has been called with: the signature is
+the type of every argument, the value of every ``ti.template()`` argument and the dtype and rank of every ndarray,
+everything Taichi's instance lookup reads for the arguments the plan admits. The first call with a signature goes
+through Taichi's own path (compiling the instance, checking every argument); later calls with the same signature
+set the arguments with one precomputed setter each and launch the same compiled kernel. The kernel run, and so
+every result, is the same bit for bit; only the Python work around it shrinks.
+
+A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
+ndarray arguments that are Taichi scalar ndarrays without gradients, scalar arguments of a primitive type, no
+return value and no autodiff or tape in use; every other call (NumPy arrays passed as ndarrays, fields, structs,
+keyword arguments, ...) takes Taichi's own path, every time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from taichi.lang import kernel_impl
+from taichi.lang._ndarray import ScalarNdarray
+from taichi.lang.kernel_impl import Kernel
+from taichi.lang.util import cook_dtype
+from taichi.types import ndarray_type, primitive_types, template
+from taichi.types.utils import is_signed
+
+_TEMPLATE_VALUES = (bool, int, float, str, type(None))
+_SCALARS = (bool, int, float)
+
+
+def _signature(kernel: Kernel, args: tuple) -> tuple | None:
+    """The plan key of a call, or None where the call takes Taichi's own path."""
+    key = []
+    for arg, argument in zip(args, kernel.arguments, strict=True):
+        kind = type(arg)
+        if isinstance(argument.annotation, template):
+            if kind not in _TEMPLATE_VALUES:
+                return None
+            key.append((kind, arg))
+        elif kind is ScalarNdarray:
+            if arg.grad is not None:
+                return None
+            key.append((kind, arg.dtype, len(arg.shape)))
+        else:
+            key.append(kind)
+    return tuple(key)
+
+
+def _setter(annotation: Any, kind: type, index: tuple[int]) -> Callable[[Any, Any], None] | None:
+    """How to set one argument of the admitted kinds on a launch context, or None."""
+    if kind is ScalarNdarray and isinstance(annotation, ndarray_type.NdarrayType):
+        return lambda ctx, v: ctx.set_arg_ndarray(index, v.arr)
+    if kind not in _SCALARS:
+        return None
+    if id(annotation) in primitive_types.real_type_ids:
+        return lambda ctx, v: ctx.set_arg_float(index, float(v))
+    if id(annotation) in primitive_types.integer_type_ids:
+        if is_signed(cook_dtype(annotation)):
+            return lambda ctx, v: ctx.set_arg_int(index, int(v))
+        return lambda ctx, v: ctx.set_arg_uint(index, int(v))
+    return None
+
+
+class _Plan:
+    """The compiled instance of one signature and one setter per non-template argument."""
+
+    def __init__(self, kernel: Kernel, args: tuple) -> None:
+        instance, _ = kernel.mapper.lookup(args)
+        self.key = (kernel.func, instance, kernel.autodiff_mode)
+        self.t_kernel = kernel.compiled_kernels[self.key]
+        self.setters: list[tuple[int, Callable[[Any, Any], None]]] = []
+        self.valid = kernel.return_type is None and not getattr(kernel, "has_print", False)
+        slot = 0
+        for position, (arg, argument) in enumerate(zip(args, kernel.arguments, strict=True)):
+            if isinstance(argument.annotation, template):
+                continue
+            setter = _setter(argument.annotation, type(arg), (slot,))
+            if setter is None:
+                self.valid = False
+                return
+            self.setters.append((position, setter))
+            slot += 1
+
+    def launch(self, kernel: Kernel, args: tuple) -> None:
+        ctx = self.t_kernel.make_launch_context()
+        for position, setter in self.setters:
+            setter(ctx, args[position])
+        prog = kernel.runtime.prog
+        prog.launch_kernel(prog.compile_kernel(prog.config(), prog.get_device_caps(), self.t_kernel), ctx)
+
+
+def _fast_call(original: Callable[..., Any]) -> Callable[..., Any]:
+    def call(self: Kernel, *args: Any, **kwargs: Any) -> Any:
+        runtime = self.runtime
+        if (kwargs or len(args) != len(self.arguments) or runtime.fwd_mode_manager or runtime.target_tape
+                or self.autodiff_mode != kernel_impl.AutodiffMode.NONE):
+            return original(self, *args, **kwargs)
+        signature = _signature(self, args)
+        if signature is None:
+            return original(self, *args)
+        plans = self.__dict__.setdefault("_tflock_plans", {})
+        plan = plans.get(signature)
+        if plan is not None and self.compiled_kernels.get(plan.key) is plan.t_kernel:
+            return plan.launch(self, args) if plan.valid else original(self, *args)
+        result = original(self, *args)  # compiles the instance and checks every argument
+        plans[signature] = _Plan(self, args)
+        return result
+
+    call.original = original  # type: ignore[attr-defined]
+    return call
+
+
+def fast_launches() -> None:
+    """Make repeated plain kernel calls skip Taichi's per-call argument analysis (idempotent)."""
+    original = Kernel.__call__
+    if not hasattr(original, "original"):
+        Kernel.__call__ = _fast_call(original)
