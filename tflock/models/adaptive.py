@@ -365,6 +365,12 @@ class Adaptive(GridModel):
         # the step whose neighbour counts the step's own pass left in graph.degree (a tuple: checkpoints leave it out)
         self._degrees_step = (-1,)
 
+    def build_neighbours(self) -> None:
+        """Rebuild the grid for the same positions: the neighbour counts of the last pass stay the state's."""
+        counted = self._degrees_step
+        super().build_neighbours()
+        self._degrees_step = counted
+
     def _step_degrees(self) -> ti.Ndarray | None:
         """The neighbour counts the last neighbour pass left, where they are the current state's."""
         return self.graph.degree if self._degrees_step == (self.step_index,) else None
