@@ -351,7 +351,7 @@ def _pair_terms(begin, end, slots, ids, p, count, pot, product, near, roots, r2c
         product *= ti.select(inside, ti.cast(r2, ti.f64) / r2cut, 1.0)
         join = inside & (k < slots) & (parent[k] != roots)
         if join.any():
-            for q in ti.static(range(LANES)):
+            for q in range(LANES):  # a run-time loop: one inlined union, not LANES (compile time)
                 if join[q]:
                     roots[q] = union(parent, roots[q], k)
     return count, pot, product, near, roots
