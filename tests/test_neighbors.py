@@ -235,18 +235,22 @@ def test_lane_wise_sums_match_brute_force(engine, boundary, box, radius):
     assert np.allclose(sums[0], adjacency @ theta.astype(engine.real), rtol=rtol)
 
 
-def bounded_grid_degrees(engine, x, radius, boundary="open", box=1.0):
-    """A bounded open-space (or periodic-box) grid on positions x (n, dim): its layout and each agent's
-    brute-force-comparable degree (agent order) from the R-graph kernel."""
-    from tflock.metrics import NeighbourGraph
-
+def built_grid(engine, x, boundary, box, radius, **options):
+    """A CellGrid (`options`: replicas, bounded) built on positions x (n, dim), agent ids 0 .. n - 1."""
     n, dim = x.shape
-    grid = CellGrid(n, dim, boundary, box, radius, engine.real, bounded=True)
+    grid = CellGrid(n, dim, boundary, box, radius, engine.real, **options)
     pos = ti.ndarray(ti.f32 if engine.real == np.float32 else ti.f64, (dim, n))
     pos.from_numpy(np.ascontiguousarray(x.T, dtype=engine.real))
     ids = ti.ndarray(ti.i32, n)
     ids.from_numpy(np.arange(n, dtype=np.int32))
     grid.build(pos, ids)
+    return grid
+
+
+def bounded_grid_degrees(engine, x, radius, boundary="open", box=1.0):
+    """A bounded open-space (or periodic-box) grid on positions x (n, dim): its layout and each agent's
+    brute-force-comparable degree (agent order) from the R-graph kernel."""
+    grid = built_grid(engine, x, boundary, box, radius, bounded=True)
     graph = NeighbourGraph(grid)
     graph.compute(radius, box)
     return grid.geometry, graph.degree.to_numpy()
@@ -395,3 +399,71 @@ def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, model_name
         drawn = model.frame(selected, max_edges=300)
         for name in ("positions", "directions", "colors", "edges"):
             np.testing.assert_array_equal(getattr(announced, name), getattr(drawn, name), err_msg=name)
+
+
+def swarm(kind, n, dim, box, radius, rng, boundary="periodic"):
+    """Positions for the components' tests: one dense flock (astride the corner of a periodic box, where it wraps;
+    in the middle of others), or many small clusters in a sparse field."""
+    if kind == "one flock":
+        x = rng.normal(size=(n, dim)) * radius * 1.5 + (0.0 if boundary == "periodic" else box / 2)
+    else:
+        centres = rng.random((n // 8, dim)) * box
+        x = centres[rng.integers(len(centres), size=n)] + rng.normal(size=(n, dim)) * radius * 0.3
+    return np.mod(x, box)
+
+
+def components_on_grid(engine, x, boundary, box, radius, strict, dense):
+    """The components of x's R-graph by the pass `dense` picks (sub-cells or pairs), on a model grid of x."""
+    from tflock.components import Components
+
+    found = Components(built_grid(engine, x, boundary, box, radius), radius, strict)
+    found.dense = dense
+    return found.compute(), found
+
+
+@pytest.mark.parametrize("dense", [False, True], ids=["pairs", "sub-cells"])
+@pytest.mark.parametrize("kind", ["one flock", "many clusters"])
+@pytest.mark.parametrize("boundary,dim", [("periodic", 2), ("reflecting", 2), ("open", 2), ("periodic", 3),
+                                          ("open", 3)])
+def test_components_match_brute_force(engine, boundary, dim, kind, dense):
+    """Both passes of tflock.components find the brute-force components: one dense flock (more than ten
+    neighbours each on average; periodic: astride the corner, so it wraps), many small clusters, open space, 3D; the
+    graph |r| < R (strict) too."""
+    rng = np.random.default_rng(dim * 7 + len(boundary) + len(kind))
+    box, radius = (12.0 if kind == "one flock" else 40.0), 1.0
+    x = swarm(kind, 500, dim, box, radius, rng, boundary).astype(engine.real)
+    for strict in (False, True):
+        (clusters, largest), found = components_on_grid(engine, x, boundary, box, radius, strict, dense)
+        a = ref.adjacency(x, radius, boundary, box)
+        if strict:
+            d = ref.displacements(x, boundary, box)
+            a = (d * d).sum(axis=2) < engine.real(radius) ** 2
+            np.fill_diagonal(a, False)
+        _, sizes = np.unique(ref.components(a), return_counts=True)
+        assert (clusters, largest) == (len(sizes), sizes.max())
+        assert (found.slot_grid is not found.model_grid) == dense  # the pass asked for ran
+    if kind == "one flock":
+        assert a.sum(axis=1).mean() > 10 and sizes.max() > 250
+    else:
+        assert len(sizes) > 20
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "open"])
+@pytest.mark.parametrize("density", ["sparse", "dense"])
+def test_replica_components_match_brute_force(engine, boundary, density):
+    """A batch of replicas (one grid, no edge across replicas): each replica's clusters and S are its own, by
+    the pass its density picks."""
+    rng = np.random.default_rng(11)
+    kind = "one flock" if density == "dense" else "many clusters"
+    box, radius, per = (10.0 if density == "dense" else 25.0), 1.0, 300
+    xs = [swarm(kind, per, 2, box, radius, rng, boundary).astype(engine.real) for _ in range(3)]
+    grid = built_grid(engine, np.concatenate(xs), boundary, box, radius, replicas=3)
+    graph = NeighbourGraph(grid)
+    got = graph.compute_replicas(radius, box)
+    assert (graph._components.slot_grid is not grid) == (density == "dense")
+    for r, x in enumerate(xs):
+        want = ref.graph_metrics(x, radius, boundary, box)
+        assert got["clusters"][r] == want["clusters"]
+        assert got["largest_cluster"][r] == pytest.approx(want["largest_cluster"])
+        assert got["mean_neighbors"][r] == pytest.approx(want["mean_neighbors"])
+        assert got["max_neighbors"][r] == want["max_neighbors"]

@@ -40,8 +40,8 @@ LANE_BITS = LANES.bit_length() - 1  # log2(LANES)
 
 
 @ti.func
-def _root(parent: ti.template(), x):
-    """Root of x inside a stripe (phase 1, one thread: plain writes), halving the path."""
+def local_root(parent: ti.template(), x):
+    """Root of x among slots one thread owns (a stripe in phase 1: plain writes), halving the path."""
     while parent[x] != x:
         gp = parent[parent[x]]
         parent[x] = gp
@@ -90,11 +90,11 @@ def block_roots(width, label, other, parent: ti.template(), size: ti.template())
     for q in ti.static(range(LANES)):
         if q < width:
             if label[q] != NO_LABEL:
-                r = _root(parent, label[q])
+                r = local_root(parent, label[q])
                 if other[q] == MIXED:
                     recheck |= 1 << q
                 elif other[q] != NO_LABEL:
-                    r2 = _root(parent, other[q])
+                    r2 = local_root(parent, other[q])
                     if r2 != r:
                         r = _join(parent, size, r, r2)
                 roots[q] = r
@@ -137,7 +137,7 @@ def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti
                 bit = m & (-m)
                 other = roots[ti.cast(ti.math.popcnt(bit - 1), ti.i32)]
                 if other >= 0:
-                    other = _root(parent, other)
+                    other = local_root(parent, other)
                     if r < 0:
                         r = other
                     elif other != r:
@@ -159,7 +159,7 @@ def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti
 @ti.func
 def join_candidate(r, k, parent: ti.template(), size: ti.template()):
     """The merged root of root r (-1: none yet) and candidate k's set (a recheck, inside a stripe)."""
-    other = _root(parent, k)
+    other = local_root(parent, k)
     if r < 0:
         r = other
     elif other != r:
@@ -189,21 +189,27 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, rad
                     if k < s_lo or k >= s_hi:
                         d = displacement(p, load_vec(pos_sorted, k, dim), box, metric)
                         if d.norm_sqr() <= radius * radius:
-                            a = _root(parent, s)
-                            z = _root(parent, k)
+                            a = local_root(parent, s)
+                            z = local_root(parent, k)
                             if a != z:
                                 _join(parent, size, a, z)
 
 
-@ti.kernel
-def _count_components(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
-    """result = (components, agents in the largest): the roots and their sizes."""
+@ti.func
+def count_roots(n, parent: ti.template(), size: ti.template(), result: ti.template()):
+    """result[0]: the number of roots (slots that are their own parent); result[1]: the largest root's size."""
     result[0] = 0
     result[1] = 0
     for s in range(n):
         if parent[s] == s:
             ti.atomic_add(result[0], 1)
             ti.atomic_max(result[1], size[s])
+
+
+@ti.kernel
+def _count_components(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
+    """result = (components, agents in the largest): the roots and their sizes."""
+    count_roots(n, parent, size, result)
 
 
 class LaneComponents:

@@ -2,10 +2,10 @@
 
 Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
 partials are added in NumPy (plain sums and means on the CPU: NumPy over the ndarray's memory), so metrics do not
-change with the thread count. Clusters are the connected components of the graph |x_i - x_j| <= R, found with a
-lock-free parallel union-find (hooking by ``atomic_min``, so each component's root is its smallest cell-sorted
-slot, whatever the thread timing) whose pass also counts the degrees; on Vulkan, whose compiler mishandles that
-union-find, by rounds of smallest labels, which give the same roots.
+change with the thread count. Clusters are the connected components of the graph |x_i - x_j| <= R, found on a
+grid of sub-cells by a lock-free parallel union-find (:mod:`tflock.subcells`); on Vulkan, whose compiler
+mishandles that union-find, by rounds of smallest labels. Degrees are counted per agent without atomics, or taken
+from a model step's own neighbour pass.
 """
 
 
@@ -15,7 +15,9 @@ import math
 import numpy as np
 import taichi as ti
 
+from tflock.components import Components, near
 from tflock.engine import current_engine
+from tflock.lane_graph import count_roots
 from tflock.neighbors import (
     CellGrid,
     load_cell,
@@ -66,115 +68,46 @@ def heading_order(theta: ti.Ndarray, n: int, reference: float = 0.0) -> tuple[fl
 
 
 @ti.func
-def _find(parent: ti.template(), x):
-    """Root of x, halving the path on the way (x's parent becomes its grandparent).
-
-    The halving write is an atomic_min to an ancestor in the same set, so it never loses a link: a concurrent
-    hook that it overrides is merged again by the hooking thread (see :func:`_union`).
-    """
-    while parent[x] != x:
-        p = parent[x]
-        gp = parent[p]
-        if gp != p:
-            ti.atomic_min(parent[x], gp)
-        x = gp
-    return x
-
-
-@ti.func
-def _union(parent: ti.template(), a, z):
-    """Merge the sets of a and z; returns the root the merged set had when the hook succeeded.
-
-    Lock-free: the larger root is hooked under the smaller value with atomic_min; if another thread changed
-    that parent meanwhile, the old parent is merged in its place, so no link is ever lost.
-    """
-    done = False
-    while not done:
-        a = _find(parent, a)
-        z = _find(parent, z)
-        if a == z:
-            done = True
-        else:
-            if a < z:
-                a, z = z, a
-            old = ti.atomic_min(parent[a], z)
-            if old == a:
-                done = True
-            else:
-                a = old
-    return z
-
-
-@ti.func
-def _tally(n, parent: ti.template(), size: ti.template(), degree: ti.template(), result: ti.template()):
-    """From each slot's root in ``parent``: the component count, the largest component and the largest degree
-    in ``result`` (``size``: zeros on entry, each root's component size on exit)."""
+def _tally(n, parent: ti.template(), size: ti.template(), result: ti.template()):
+    """From each slot's root in ``parent``: the component count and the largest component in ``result``
+    (``size``: zeros on entry, each root's component size on exit)."""
     for s in range(n):
         ti.atomic_add(size[parent[s]], 1)
-    result[0] = 0
-    result[1] = 0
-    result[2] = 0
-    for s in range(n):
-        if parent[s] == s:
-            ti.atomic_add(result[0], 1)
-            ti.atomic_max(result[1], size[s])
-        ti.atomic_max(result[2], degree[s])
+    count_roots(n, parent, size, result)
 
 
 @ti.kernel
-def _graph(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32,
-           boundary: ti.template(), dim: ti.template(), in_rounds: ti.template(), start: ti.types.ndarray(),
-           mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
-           id_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray(),
-           degree: ti.types.ndarray(), result: ti.types.ndarray()):
-    """Degrees and, unless ``in_rounds`` (then :func:`_label_round` finds the components), the components."""
+def _degrees(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32, boundary: ti.template(),
+             dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+             coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(), degree: ti.types.ndarray()):
+    """Each agent's neighbour count (agent order, itself excluded), counted from its own stencil: branch-free,
+    no atomics."""
+    for s in range(n):
+        p = load_vec(pos_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
+        count = 0
+        for o in range(ti.static(span_count(boundary, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
+            for k in range(begin, end):
+                d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
+                w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
+                if ti.static(boundary == OPEN):
+                    if check:
+                        w *= same_cell(coords_sorted, k, cell, boundary, dim)
+                count += w
+        degree[id_sorted[s]] = count
+
+
+@ti.kernel
+def _identity(n: ti.i32, parent: ti.types.ndarray()):
     for s in range(n):
         parent[s] = s
-        size[s] = 0
-    if ti.static(in_rounds):
-        for s in range(n):  # degrees: branch-free
-            p = load_vec(pos_sorted, s, dim)
-            c = load_cell(coords_sorted, s, dim)
-            count = 0
-            for o in range(ti.static(span_count(boundary, dim))):
-                lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-                begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
-                for k in range(begin, end):
-                    d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                    w = ti.select(d.norm_sqr() <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
-                    if ti.static(boundary == OPEN):
-                        if check:
-                            w *= same_cell(coords_sorted, k, cell, boundary, dim)
-                    count += w
-            degree[id_sorted[s]] = count
-    else:
-        for s in range(n):  # each pair within R once, from its later slot: union the two, count it for both
-            p = load_vec(pos_sorted, s, dim)
-            c = load_cell(coords_sorted, s, dim)
-            root = s  # a recent root of s's set: saves walking s's chain for every neighbour
-            count = 0
-            for o in range(ti.static(span_count(boundary, dim))):
-                lo, hi, cell = stencil_span(c, o, nc, n_buckets, boundary, dim)
-                begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
-                for k in range(begin, ti.min(end, s)):
-                    d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                    if d.norm_sqr() <= radius * radius and (check == 0 or same_cell(coords_sorted, k, cell, boundary,
-                                                                                     dim) == 1):
-                        count += 1
-                        ti.atomic_add(size[k], 1)  # degrees in slot order for now
-                        if parent[k] != root:  # k already hangs under s's root: nothing to merge
-                            root = _union(parent, root, k)
-            ti.atomic_add(size[s], count)
-        for s in range(n):
-            degree[id_sorted[s]] = size[s]
-            size[s] = 0
-            parent[s] = _find(parent, s)
-        _tally(n, parent, size, degree, result)
 
 
 @ti.kernel
 def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32, boundary: ti.template(),
-                 dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                 dim: ti.template(), strict: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
                  pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), label: ti.types.ndarray(),
                  label_next: ti.types.ndarray(), round_no: ti.i32, changed: ti.types.ndarray()):
     """One round of the components on Vulkan, with no atomics: each slot's next label is the smallest label among
@@ -191,7 +124,7 @@ def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti
             begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, boundary, dim)
             for k in range(begin, end):
                 d = displacement(p, load_vec(pos_sorted, k, dim), box, boundary)
-                w = d.norm_sqr() <= radius * radius
+                w = near(d.norm_sqr(), radius * radius, strict)
                 if ti.static(boundary == OPEN):
                     if check:
                         w = w and same_cell(coords_sorted, k, cell, boundary, dim) == 1
@@ -204,76 +137,123 @@ def _label_round(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti
 
 
 @ti.kernel
-def _finish(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), degree: ti.types.ndarray(),
-            result: ti.types.ndarray()):
+def _finish(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
     for s in range(n):
         size[s] = 0
-    _tally(n, parent, size, degree, result)
+    _tally(n, parent, size, result)
 
 
 class NeighbourGraph:
-    """Scratch arrays and results of the R-graph metrics for one grid."""
+    """The R-graph metrics of one grid's agents: each agent's degree (counted by :func:`_degrees`, or handed over
+    by a model whose step counts them in its own neighbour pass) and the connected components
+    (:class:`~tflock.subcells.SubcellComponents`; on Vulkan, rounds of labels). ``strict``: the graph of
+    |x_i - x_j| < R (the potential model's) for the components, instead of <= R."""
 
-    def __init__(self, grid: CellGrid) -> None:
+    def __init__(self, grid: CellGrid, strict: bool = False) -> None:
         self.grid = grid
+        self.strict = strict
         n = grid.n
-        self.parent = ti.ndarray(ti.i32, n)
-        self.size = ti.ndarray(ti.i32, n)
         self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
-        self.result = ti.ndarray(ti.i32, 3)
-        # on Vulkan the lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
+        self._components: Components | None = None  # allocated on first use
+        # on Vulkan a lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
         self.in_rounds = engine is not None and engine.arch == "vulkan"
-        self.changed = ti.ndarray(ti.i32, 1) if self.in_rounds else None
+        if self.in_rounds:
+            self.parent = ti.ndarray(ti.i32, n)
+            self.size = ti.ndarray(ti.i32, n)
+            self.result = ti.ndarray(ti.i32, 2)
+            self.changed = ti.ndarray(ti.i32, 1)
 
-    def _run(self, radius: float, box: float) -> None:
+    def degrees(self, radius: float, box: float) -> ti.Ndarray:
+        """Each agent's neighbour count in ``degree`` (agent order)."""
         g, grid = self.grid.geometry, self.grid
-        _graph(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.in_rounds, grid.start,
-               grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.parent, self.size,
-               self.degree, self.result)
-        if self.in_rounds:  # labels alternate between parent and size, until a round changes none
-            self.changed.fill(0)
-            round_no = 0
-            while round_no == 0 or self.changed.to_numpy()[0] == round_no:
-                round_no += 1
-                _label_round(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
-                             grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent, self.size, round_no,
-                             self.changed)
-                self.parent, self.size = self.size, self.parent  # the new labels are the parents
-            _finish(grid.n, self.parent, self.size, self.degree, self.result)
+        _degrees(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start, grid.mixed,
+                 grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.degree)
+        return self.degree
 
-    def compute(self, radius: float, box: float) -> dict[str, float]:
-        """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions."""
+    def _found(self, radius: float) -> Components:
+        if self._components is None or self._components.radius != radius:
+            self._components = Components(self.grid, radius, self.strict)
+        return self._components
+
+    def pairs_parent(self, radius: float) -> ti.Ndarray:
+        """The union-find array (over the grid's slots) for a model kernel that makes the pairs pass of the
+        components in its own neighbour loop; then :meth:`joined_components` (CPU arches)."""
+        return self._found(radius).parent
+
+    def joined_components(self, radius: float) -> tuple[int, int]:
+        """:meth:`components` from the pairs pass a model's kernel made into :meth:`pairs_parent`."""
+        return self._found(radius).from_joined_pairs()
+
+    def components(self, radius: float, box: float, mean_degree: float | None = None) -> tuple[int, int]:
+        """The number of connected components and the largest one's size; `mean_degree`, where known, picks the
+        faster pass (see :class:`~tflock.components.Components`)."""
+        if not self.in_rounds:
+            return self._found(radius).compute(mean_degree)
+        g, grid = self.grid.geometry, self.grid
+        _identity(grid.n, self.parent)
+        self.changed.fill(0)
+        round_no = 0
+        while round_no == 0 or self.changed.to_numpy()[0] == round_no:  # labels alternate between parent and size
+            round_no += 1
+            _label_round(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.strict,
+                         grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent, self.size,
+                         round_no, self.changed)
+            self.parent, self.size = self.size, self.parent  # the new labels are the parents
+        _finish(grid.n, self.parent, self.size, self.result)
+        clusters, largest = (int(v) for v in self.result.to_numpy())
+        return clusters, largest
+
+    def _roots(self) -> tuple[np.ndarray, np.ndarray]:
+        """After :meth:`components`: the grid slot and the size of each component's root."""
+        if self.in_rounds:
+            parent, size, slot_of = self.parent.to_numpy(), self.size.to_numpy(), np.arange(self.grid.n)
+        else:
+            found = self._components
+            parent, size = found.parent.to_numpy(), found.size.to_numpy()
+            slot_of = np.arange(self.grid.n)  # the pairs pass's slots are the grid's, the sub-cells' are named
+            if found.slot_grid is not self.grid:
+                slot_of = found.slot_grid.id_sorted.to_numpy()
+        roots = parent == np.arange(self.grid.n)
+        return slot_of[roots], size[roots]
+
+    def compute(self, radius: float, box: float, degree: ti.Ndarray | None = None) -> dict[str, float]:
+        """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions; `degree`:
+        the agents' neighbour counts, in any order, where the model has them already."""
         n = self.grid.n
-        self._run(radius, box)
-        clusters, largest, max_degree = (int(v) for v in self.result.to_numpy())
+        if degree is None:
+            degree = self.degrees(radius, box)
+        mean_degree = mean(degree, n)
+        clusters, largest = self.components(radius, box, mean_degree)
         return {
             "clusters": float(clusters),
             "largest_cluster": largest / n,
-            "mean_neighbors": mean(self.degree, n),
-            "max_neighbors": float(max_degree),
+            "mean_neighbors": mean_degree,
+            "max_neighbors": maximum(degree, n),
         }
 
-    def compute_replicas(self, radius: float, box: float) -> dict[str, np.ndarray]:
-        """:meth:`compute` for each replica of a batched grid (arrays of length ``grid.replicas``).
+    def compute_replicas(self, radius: float, box: float, degree: ti.Ndarray | None = None) -> dict[str, np.ndarray]:
+        """:meth:`compute` for each replica of a batched grid (arrays of length ``grid.replicas``); `degree` in
+        agent or grid-slot order (both hold each replica's agents together).
 
-        One kernel pass over the whole batch (no edge joins two replicas, so every component lies in one), then
-        the per-replica counts in NumPy.
+        One pass over the whole batch (no edge joins two replicas, so every component lies in one), then the
+        per-replica counts in NumPy: a grid's slots hold the replicas one after the other.
         """
-        self._run(radius, box)
+        if degree is None:
+            degree = self.degrees(radius, box)
+        self.components(radius, box, mean(degree, self.grid.n))
         replicas, per = self.grid.replicas, self.grid.geometry.agents_per_replica
-        parent = self.parent.to_numpy()
-        roots = parent == np.arange(self.grid.n)
-        replica_of_root = self.grid.id_sorted.to_numpy()[roots] // per
+        slots, sizes = self._roots()
+        replica_of_root = slots // per
         largest = np.zeros(replicas, dtype=np.int64)
-        np.maximum.at(largest, replica_of_root, self.size.to_numpy()[roots])
-        degree = self.degree.to_numpy().reshape(replicas, per)  # agent order: replica-major
+        np.maximum.at(largest, replica_of_root, sizes)
+        by_replica = degree.to_numpy()[: self.grid.n].reshape(replicas, per)
         return {
             "clusters": np.bincount(replica_of_root, minlength=replicas).astype(np.float64),
             "largest_cluster": largest / per,
-            "mean_neighbors": degree.sum(axis=1) / per,
-            "max_neighbors": degree.max(axis=1).astype(np.float64),
+            "mean_neighbors": by_replica.sum(axis=1) / per,
+            "max_neighbors": by_replica.max(axis=1).astype(np.float64),
         }
 
 
@@ -308,6 +288,12 @@ def kernel_total(values: ti.Ndarray, n: int) -> float:
 def mean(values: ti.Ndarray, n: int) -> float:
     """Deterministic mean of an (n,) ndarray: :func:`total` / n."""
     return total(values, n) / n
+
+
+def maximum(values: ti.Ndarray, n: int) -> float:
+    """Largest of ``values[:n]`` (NumPy over the ndarray's memory on the CPU, a copy elsewhere)."""
+    view = host_view(values)
+    return float((view if view is not None else values.to_numpy())[:n].max())
 
 
 #: up to this many agents, e_d and e_theta are exact (all n (n - 1) / 2 pairs); above, estimates

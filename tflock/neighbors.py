@@ -80,15 +80,17 @@ class GridGeometry:
     agents_per_replica: int
 
 
-def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, replicas: int = 1) -> GridGeometry:
-    """Choose cells of side >= radius: a tiling of the box, or a hash table of ~2n buckets in open space, for
-    each replica of n / replicas agents as for a lone system of that size."""
+def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, replicas: int = 1,
+                  at_most: bool = False) -> GridGeometry:
+    """Choose cells of side >= radius (``at_most``: <= radius, unless the cap on the number of cells makes them
+    larger): a tiling of the box, or a hash table of ~2n buckets in open space, for each replica of
+    n / replicas agents as for a lone system of that size."""
     code = boundary_code(boundary)
     per_replica = n // replicas
     if code == OPEN:
         n_buckets = 1 << max(4, math.ceil(math.log2(2 * per_replica)))
         return GridGeometry(dim, code, float(radius), 0, n_buckets, replicas * n_buckets, per_replica)
-    per_side = max(1, int(box // radius))
+    per_side = max(1, math.ceil(box / radius) if at_most else int(box // radius))
     cap = max(64, 4 * per_replica)
     if per_side**dim > cap:
         per_side = max(1, int(cap ** (1.0 / dim)))
@@ -543,6 +545,8 @@ class CellGrid:
     gives the slot of each agent. With ``replicas`` > 1 the n agents are that many independent systems of
     n / replicas agents each (agent id = replica * n / replicas + local id) that never see each other.
 
+    ``at_most``: cells of side at most `radius` in a box (see :func:`grid_geometry`), for sub-cell grids.
+
     ``bounded`` (open space or periodic box, one replica): each build stores the cells row-major over the agents'
     bounding box (open space) or window (periodic box) when they fit, else keeps the hash or the tiling (see the
     module); ``geometry`` is then the layout of the last build, so kernels read it after building. A batch of
@@ -551,7 +555,8 @@ class CellGrid:
     """
 
     def __init__(self, n: int, dim: int, boundary: str, box: float, radius: float, real: type,
-                 replicas: int = 1, rank_sort: bool | None = None, bounded: bool = False) -> None:
+                 replicas: int = 1, rank_sort: bool | None = None, bounded: bool = False,
+                 at_most: bool = False) -> None:
         if n % replicas:
             raise ValueError(f"{n} agents do not split into {replicas} equal replicas")
         self.n = n
@@ -559,8 +564,9 @@ class CellGrid:
         self.replicas = replicas
         self.radius = radius
         self.box = box
-        self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas)
+        self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas, at_most)
         self._fallback = self.geometry  # a bounded grid's hash or tiling
+        self.boundary = self.geometry.boundary  # the space's boundary code (``geometry`` holds the layout's)
         g = self.geometry
         self.bounded = bounded and g.boundary in (OPEN, PERIODIC) and replicas == 1
         # buckets the arrays hold: the layout's, and for a window at least WINDOW_MIN_BUCKETS (the capped tiling of

@@ -91,8 +91,9 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: floa
            start: ti.types.ndarray(), mixed: ti.types.ndarray(), order: ti.types.ndarray(),
            id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
            payload: ti.types.ndarray(), pos: ti.types.ndarray(), dirs: ti.types.ndarray(), phi: ti.types.ndarray(),
-           ids: ti.types.ndarray()):
-    """Eqs. (4), (7), (9), (12) with the neighbours of the grid's positions; writes the state in cell order."""
+           ids: ti.types.ndarray(), degree: ti.types.ndarray()):
+    """Eqs. (4), (7), (9), (12) with the neighbours of the grid's positions; writes the state in cell order, and
+    each agent's neighbour count (itself excluded) for the metrics, which then need no pass of their own."""
     for s in range(n):  # d_j(k) in cell order: contiguous reads in the neighbour loop
         e = order[s]
         for a in ti.static(range(dim)):
@@ -134,6 +135,7 @@ def _align(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: floa
             dirs[a, s] = new[a]
         phi[s] = ti.min(norm, 1.0)
         ids[s] = i
+        degree[s] = ti.cast(count, ti.i32) - 1
         order[s] = s  # element s now holds slot s: the grid's order stays valid for the new arrangement
 
 
@@ -239,6 +241,7 @@ class Adaptive(GridModel):
         self._upload(np.concatenate([x for x, _ in draws]), np.concatenate([d for _, d in draws]), np.zeros(n))
         self._ensure_grid()
         self._align(with_noise=False)  # phi_i(0), d_i(0) from eq. (4)
+        self._degrees_step = (0,)
         self._track_tau()
 
     # ------------------------------------------------------------------ state
@@ -248,7 +251,7 @@ class Adaptive(GridModel):
         self.dirs.from_numpy(np.ascontiguousarray(np.asarray(d).T, dtype=real))
         self.phi.from_numpy(np.ascontiguousarray(phi, dtype=real))
         self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
-        self._grid_step = -1
+        self.invalidate()
 
     def set_state(self, state: Mapping[str, np.ndarray], step: int) -> None:
         """Replace the state (``x``, ``d``, ``phi`` as :meth:`state` returns them); tau is tracked anew."""
@@ -276,7 +279,7 @@ class Adaptive(GridModel):
         _align(self.step_index, self.seed, self.n_total, p.n, p.radius, p.box, p.noise, math.cos(p.noise),
                with_noise, self._boundary, p.dim, g.cells_per_side, g.n_buckets, self.grid.start, self.grid.mixed,
                self.grid.order, self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload,
-               self.pos, self.dirs, self.phi, self.ids)
+               self.pos, self.dirs, self.phi, self.ids, self.graph.degree)
 
     def advance(self, steps: int) -> None:
         p = self.params
@@ -287,6 +290,7 @@ class Adaptive(GridModel):
             self._align(with_noise=p.noise > 0)
             self.step_index += 1
             self._grid_step = self.step_index  # the step moved no agent after the build
+            self._degrees_step = (self.step_index,)  # and its pass counted the neighbours there
             self._track_tau()
 
     # ------------------------------------------------------------------ metrics
@@ -321,7 +325,7 @@ class Adaptive(GridModel):
         p = self.params
         self._ensure_grid()
         out = self._replica_sums()
-        out.update(self.graph.compute_replicas(p.radius, p.box))
+        out.update(self.graph.compute_replicas(p.radius, p.box, self._step_degrees()))
         tau = self.tau if self.replicas == 1 else self._replica_tau
         out["tau"] = np.where(np.asarray(tau) < 0, np.nan, tau).astype(np.float64).reshape(self.replicas)
         converged = (out["largest_cluster"] == 1.0) & (out["phi_theta"] >= 1 - CONVERGED_TOL)
@@ -336,7 +340,7 @@ class Adaptive(GridModel):
         mean_d, mean_v, c_alpha, speed = self._sums()
         out = {"phi_theta": float(np.linalg.norm(mean_d)), "phi_v": float(np.linalg.norm(mean_v)),
                "c_alpha": c_alpha, "mean_speed": speed}
-        out.update(self.graph.compute(p.radius, p.box))
+        out.update(self.graph.compute(p.radius, p.box, self._step_degrees()))
         out["tau"] = math.nan if self.tau < 0 else float(self.tau)
         converged = out["largest_cluster"] == 1.0 and out["phi_theta"] >= 1 - CONVERGED_TOL
         out["converged"] = float(converged)
@@ -358,6 +362,18 @@ class Adaptive(GridModel):
     def invalidate(self) -> None:
         super().invalidate()
         self._last_move = None
+        # the step whose neighbour counts the step's own pass left in graph.degree (a tuple: checkpoints leave it out)
+        self._degrees_step = (-1,)
+
+    def build_neighbours(self) -> None:
+        """Rebuild the grid for the same positions: the neighbour counts of the last pass stay the state's."""
+        counted = self._degrees_step
+        super().build_neighbours()
+        self._degrees_step = counted
+
+    def _step_degrees(self) -> ti.Ndarray | None:
+        """The neighbour counts the last neighbour pass left, where they are the current state's."""
+        return self.graph.degree if self._degrees_step == (self.step_index,) else None
 
     def draw_next(self, selected: np.ndarray) -> None:
         """Keep the drawn agents' velocities of the move the next step makes (eq. 5 uses phi(k) and d(k), which

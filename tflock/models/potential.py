@@ -33,6 +33,7 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
+from tflock.components import union
 from tflock.engine import EngineInfo
 from tflock.field import VECTORS
 from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
@@ -124,6 +125,56 @@ def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), par
             partial[blk, a] = big
             partial[blk, dim + a] = small
         partial[blk, 2 * dim] = squares
+
+
+#: columns of :func:`_velocity_stats`' partials: sums of v (dim), |v|, |v|^2, v / |v| (dim), |v - mean|, then the
+#: largest |v|, smallest |v| and largest |v - mean|
+def _velocity_columns(dim: int) -> int:
+    return 2 * dim + 6
+
+
+@ti.kernel
+def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), centre: ti.types.ndarray(),
+                    with_mismatch: ti.template(), partial: ti.types.ndarray()):
+    """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
+    headings of the velocities; with `with_mismatch`, |v_i - centre| too (centre: the mean velocity, from a
+    first launch). The blocks are added in NumPy: the same whatever the threads."""
+    for blk in range(partial.shape[0]):
+        lo = blk * BLOCK
+        hi = ti.min(n, lo + BLOCK)
+        total = ti.Vector([0.0] * dim, dt=ti.f64)
+        unit = ti.Vector([0.0] * dim, dt=ti.f64)
+        speeds = ti.cast(0.0, ti.f64)
+        squares = ti.cast(0.0, ti.f64)
+        gaps = ti.cast(0.0, ti.f64)
+        fast = ti.cast(0.0, ti.f64)
+        slow = ti.cast(math.inf, ti.f64)
+        widest = ti.cast(0.0, ti.f64)
+        c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
+        for i in range(lo, hi):
+            v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
+            sq = v.norm_sqr()
+            speed = ti.sqrt(sq)
+            total += v
+            squares += sq
+            speeds += speed
+            if speed > 0:
+                unit += v / speed
+            fast = ti.max(fast, speed)
+            slow = ti.min(slow, speed)
+            if ti.static(with_mismatch):
+                gap = (v - c).norm()
+                gaps += gap
+                widest = ti.max(widest, gap)
+        for a in ti.static(range(dim)):
+            partial[blk, a] = total[a]
+            partial[blk, dim + 2 + a] = unit[a]
+        partial[blk, dim] = speeds
+        partial[blk, dim + 1] = squares
+        partial[blk, 2 * dim + 2] = gaps
+        partial[blk, 2 * dim + 3] = fast
+        partial[blk, 2 * dim + 4] = slow
+        partial[blk, 2 * dim + 5] = widest
 
 
 @ti.kernel
@@ -303,6 +354,73 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
         nearest[i] = ti.sqrt(near)
 
 
+@ti.func
+def _pair_terms(begin, end, slots, ids, p, count, pot, product, near, roots, r2cut, d2, v_cut, dim: ti.template(),
+                id_sorted: ti.template(), pos_sorted: ti.template(), parent: ti.template()):
+    """:func:`_grid_pairs`' sums over the candidates [begin, end) for ``LANES`` agents at once (p: (dim, LANES),
+    a column an agent at slot ``slots[q]`` with id ``ids[q]``), and each lane's joins of its neighbours at smaller
+    slots into its set (``roots[q]``: a recent root of it; see :func:`tflock.components.union`). Branch-free but
+    for the joins: the potential's logarithms are summed as the log of a float64 product of r^2 / R^2 (each factor
+    in (0, 1), taken by the caller once per span)."""
+    for k in range(begin, end):
+        j = id_sorted[k]
+        if j < 0:  # never: ids count from 0 (keeps LLVM's loop vectoriser off, as in _accelerations)
+            break
+        d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+        r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
+        for a in ti.static(range(1, dim)):
+            r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
+        inside = (r2 < r2cut) & (ids != j)
+        count += ti.select(inside, 1, 0)
+        near = ti.select(inside, ti.min(near, r2), near)
+        pot += ti.select(inside, d2 / r2 - v_cut, 0.0)  # itself: 0 / 0, never added
+        product *= ti.select(inside, ti.cast(r2, ti.f64) / r2cut, 1.0)
+        join = inside & (k < slots) & (parent[k] != roots)
+        if join.any():
+            for q in range(LANES):  # a run-time loop: one inlined union, not LANES (compile time)
+                if join[q]:
+                    roots[q] = union(parent, roots[q], k)
+    return count, pot, product, near, roots
+
+
+@ti.kernel
+def _pairs_lanes(n: ti.i32, total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, v_cut: float,
+                 dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                 id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
+                 valency: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
+    """:func:`_grid_pairs` on the CPU, ``LANES`` agents of a run of cells at a time (as :func:`_step_lanes`), and
+    the pairs pass of the components (:mod:`tflock.components`) in the same candidate loop: ``parent`` over the
+    grid's slots."""
+    for s in range(n):
+        parent[s] = s
+    for b in range(total_buckets):
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        for block in range((a1 - a0 + LANES - 1) // LANES):
+            i0 = a0 + block * LANES
+            slots = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
+            p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))]
+                           for a in ti.static(range(dim))])
+            ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
+            count = ti.Vector([0] * LANES)
+            pot = ti.Vector([0.0] * LANES)
+            logs = ti.Vector([0.0] * LANES, dt=ti.f64)
+            near = ti.Vector([r2cut] * LANES)
+            roots = slots
+            for r in range(ti.static(3 ** (dim - 1))):
+                begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                product = ti.Vector([1.0] * LANES, dt=ti.f64)
+                count, pot, product, near, roots = _pair_terms(begin, end, slots, ids, p, count, pot, product, near,
+                                                               roots, r2cut, d2, v_cut, dim, id_sorted, pos_sorted,
+                                                               parent)
+                logs += ti.log(product)
+            pot += ti.cast(logs + ti.cast(count, ti.f64) * ti.log(ti.cast(r2cut, ti.f64)), float)  # the run's type
+            for q in ti.static(range(LANES)):
+                if i0 + q < a1:
+                    valency[ids[q]] = count[q]
+                    energy[ids[q]] = 0.5 * pot[q]
+                    nearest[ids[q]] = ti.sqrt(near[q])
+
+
 @ti.kernel
 def _csr_energy(n: ti.i32, d2: float, dim: ti.template(), offsets: ti.types.ndarray(),
                 neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), energy: ti.types.ndarray()):
@@ -378,7 +496,7 @@ class Potential(GridModel):
         # the bounded layout runs on the CPU only: GPU arches keep the hash, checked there on an H100
         self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=engine.arch == "cpu")
         self.lane_wise = engine.arch == "cpu" and self.switching  # see _step_lanes
-        self.graph = NeighbourGraph(self.grid)
+        self.graph = NeighbourGraph(self.grid, strict=True)  # N_i: |r_ij| < R
         self._grid_step = -1
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
@@ -389,7 +507,8 @@ class Potential(GridModel):
             self.offsets.from_numpy(offsets)
             if len(neighbours):
                 self.neighbours.from_numpy(neighbours)
-            self.valency.from_numpy(np.diff(offsets).astype(np.int32))
+            self.valency_np = np.diff(offsets).astype(np.int32)  # the fixed graph's, agent order
+            self.valency.from_numpy(self.valency_np)
             m = n if n > EXACT_PAIRS_MAX else 1  # the grid finds the nearest agents of a large fixed-graph swarm
             self._grid_valency = ti.ndarray(ti.i32, m)
             self._grid_energy = ti.ndarray(ftype, m)
@@ -442,6 +561,7 @@ class Potential(GridModel):
     def invalidate(self) -> None:
         super().invalidate()
         self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
+        self._components_found: tuple[int, int] | None = None  # (step, components) where the pairs' pass found them
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -526,7 +646,17 @@ class Potential(GridModel):
             return
         if self.switching:
             self._ensure_grid()
-            self._grid_pairs(self.valency, self.energy)
+            g = self.grid.geometry
+            if self.lane_wise and g.boundary == BOUNDED:  # the components' pairs pass in the same loop
+                p = self.params
+                d2 = p.desired_distance**2
+                v_cut = d2 / p.radius**2 + math.log(p.radius**2)
+                _pairs_lanes(p.n, g.total_buckets, g.cells_per_side, p.radius**2, d2, v_cut, self.dim, g.boundary,
+                             self.grid.start, self.grid.runs(), self.grid.id_sorted, self.grid.pos_sorted,
+                             self.graph.pairs_parent(p.radius), self.valency, self.energy, self.nearest)
+                self._components_found = (self.step_index, self.graph.joined_components(p.radius)[0])
+            else:
+                self._grid_pairs(self.valency, self.energy)
         else:
             p = self.params
             _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
@@ -557,39 +687,59 @@ class Potential(GridModel):
         partial = partial.to_numpy().astype(np.float64)
         return partial[:, :dim].max(axis=0), partial[:, dim:2 * dim].min(axis=0), float(partial[:, 2 * dim].sum())
 
+    def _velocity_stats(self) -> dict[str, float]:
+        """Velocity mismatch, speeds, polarization and kinetic energy over all agents, from two kernel launches
+        (the mean velocity, then the mismatch against it) and their block partials: no copy of the velocities."""
+        n, dim = self.params.n, self.dim
+        partial = _block_partials((n_blocks(n), _velocity_columns(dim)), ti.f64)
+        centre = _block_partials((dim,), ti.f64)
+        _velocity_stats(n, dim, self.vel, centre, False, partial)
+        sums = partial.to_numpy()
+        centre.from_numpy(sums[:, :dim].sum(axis=0) / n)
+        _velocity_stats(n, dim, self.vel, centre, True, partial)
+        blocks = partial.to_numpy()
+        sums = blocks.sum(axis=0)
+        heading = sums[dim + 2: 2 * dim + 2] / n
+        return {
+            "velocity_mismatch_mean": float(sums[2 * dim + 2] / n),
+            "velocity_mismatch_max": float(blocks[:, 2 * dim + 5].max()),
+            "speed_mean": float(sums[dim] / n),
+            "speed_spread": float(blocks[:, 2 * dim + 3].max() - blocks[:, 2 * dim + 4].min()),
+            "polarization": float(np.sqrt((heading * heading).sum())),
+            "kinetic_energy": 0.5 * float(sums[dim + 1]),
+        }
+
     def metrics(self) -> dict[str, float]:
         p = self.params
         n = p.n
         self._ensure_grid()
         self._pair_energies()
-        if self.switching:
-            graph = self.graph.compute(p.radius, p.box)
-            components = graph["clusters"]
-        else:
-            components = 1.0  # validated connected, and fixed
+        components = 1.0  # a fixed graph: validated connected
+        if not self.switching:
             if n > EXACT_PAIRS_MAX:
                 self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX:
             _exact_nearest(n, self.dim, self.pos, self.nearest)
-        v = self.vel.to_numpy().astype(np.float64).T  # order of the agents does not matter below
-        speed = np.sqrt((v * v).sum(axis=1))
-        mismatch = np.sqrt(((v - v.mean(axis=0)) ** 2).sum(axis=1))
-        moving = speed > 0
-        heading = (v[moving] / speed[moving, None]).sum(axis=0) / n
-        kinetic = 0.5 * float((speed * speed).sum())
-        potential = float(self.energy.to_numpy().astype(np.float64).sum())
-        valency = self.valency.to_numpy()
+        if self.switching:
+            valency = host_view(self.valency)
+            valency = valency if valency is not None else self.valency.to_numpy()
+            found = self._components_found
+            if found is not None and found[0] == self.step_index:  # by _pair_energies' pass
+                components = float(found[1])
+            else:
+                components = float(self.graph.components(p.radius, p.box, float(valency.mean()))[0])
+        else:
+            valency = self.valency_np
+        stats = self._velocity_stats()
+        potential = total(self.energy, n)
+        nearest = host_view(self.nearest)
+        nearest = nearest if nearest is not None else self.nearest.to_numpy()
         out = {
-            "velocity_mismatch_mean": float(mismatch.mean()),
-            "velocity_mismatch_max": float(mismatch.max()),
-            "speed_mean": float(speed.mean()),
-            "speed_spread": float(speed.max() - speed.min()),
-            "polarization": float(np.sqrt((heading * heading).sum())),
-            "kinetic_energy": kinetic,
+            **stats,
             "potential_energy": potential,
-            "W": kinetic + potential,
-            "Q": kinetic + potential,
-            "min_distance": float(self.nearest.to_numpy().min()) if n > 1 else 0.0,
+            "W": stats["kinetic_energy"] + potential,
+            "Q": stats["kinetic_energy"] + potential,
+            "min_distance": float(nearest.min()) if n > 1 else 0.0,
             "valency_mean": float(valency.mean()),
             "valency_min": float(valency.min()),
             "valency_max": float(valency.max()),
@@ -601,7 +751,7 @@ class Potential(GridModel):
         if n <= PER_AGENT_MAX:
             ids = self.ids.to_numpy()
             agent_speed = np.empty(n)
-            agent_speed[ids] = speed
+            agent_speed[ids] = np.sqrt((self.vel.to_numpy().astype(np.float64) ** 2).sum(axis=0))
             out.update({f"valency_{i}": float(valency[i]) for i in range(n)})
             out.update({f"speed_{i}": float(agent_speed[i]) for i in range(n)})
         return {name: out[name] for name in self.metric_descriptions}
