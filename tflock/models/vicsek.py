@@ -463,25 +463,32 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
 
 
 @ti.func
-def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
-                  rule: ti.template(), boundary: ti.template(), leader: ti.template(), batched: ti.template(),
+def _update_lanes(i0, last, tail: ti.template(), t, seed, per_replica, speed, noise, box, max_turn, inv_g,
+                  rule: ti.template(), boundary: ti.template(), leader: ti.template(),
                   vectorial: ti.template(), wrap: ti.template(),
                   id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
                   pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
                   turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
                   drawn: ti.template()):
-    """Steps 2-5 of the synchronous step for agents at slots i0 .. i0 + width - 1, from the neighbour sums; with
-    `draw`, the drawn agents' frame rows at their ranks (see :func:`drawn_rank` and :func:`_drawn_rows`)."""
-    i = ti.Vector([id_sorted[i0 + k] for k in ti.static(range(width))])
-    th = ti.Vector([payload[2, i0 + k] for k in ti.static(range(width))])
-    acc_a = ti.Vector([sums[0, i0 + k] for k in ti.static(range(width))])
-    acc_b = ti.Vector([sums[1, i0 + k] for k in ti.static(range(width))])
-    count = ti.Vector([sums[2, i0 + k] for k in ti.static(range(width))])
+    """Steps 2-5 of the synchronous step for the UPDATE_WIDTH agents at slots i0 .. i0 + UPDATE_WIDTH - 1, from the
+    neighbour sums; with `draw`, the drawn agents' frame rows at their ranks (see :func:`drawn_rank` and
+    :func:`_drawn_rows`). The `tail` block (the last agents, fewer than UPDATE_WIDTH, up to slot `last`) runs the
+    same lanes, its extra lanes reading and writing slot `last` (they compute its values again, bit for bit): every
+    agent is computed by the same vector code, whatever its slot, so a batch of replicas gives each agent the bits
+    of its lone run (code compiled for one lane may round differently where LLVM fuses multiply-adds)."""
+    width = ti.static(UPDATE_WIDTH)
+    at = ti.Vector([i0 + k for k in ti.static(range(width))])
+    if ti.static(tail):
+        at = ti.min(at, last)
+    i = ti.Vector([id_sorted[at[k]] for k in ti.static(range(width))])
+    th = ti.Vector([payload[2, at[k]] for k in ti.static(range(width))])
+    acc_a = ti.Vector([sums[0, at[k]] for k in ti.static(range(width))])
+    acc_b = ti.Vector([sums[1, at[k]] for k in ti.static(range(width))])
+    count = ti.Vector([sums[2, at[k]] for k in ti.static(range(width))])
     key = ti.Vector([seed] * width, dt=ti.u32)
     local = i
-    if ti.static(batched):
-        for k in ti.static(range(width)):
-            key[k], local[k] = replica_key(seed, i[k], per_replica)
+    for k in ti.static(range(width)):  # one replica: its plain keys; one code for lone runs and batches alike
+        key[k], local[k] = replica_key(seed, i[k], per_replica)
     u = ti.Vector([uniform_ti(key[k], t, local[k], Stream.NOISE) for k in ti.static(range(width))])
     xi = noise * (u - 0.5)
     if ti.static(vectorial):  # Gregoire-Chate: a unit vector of weight eta (1 + n_i) joins the sum
@@ -506,8 +513,8 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         update = local != 0  # the leader keeps theta0 (Jadbabaie eq. 22)
         new = ti.select(update, new, th)
     sin_new, cos_new = sin_cos(new)
-    qx = ti.Vector([pos_sorted[0, i0 + k] for k in ti.static(range(width))]) + speed * cos_new
-    qy = ti.Vector([pos_sorted[1, i0 + k] for k in ti.static(range(width))]) + speed * sin_new
+    qx = ti.Vector([pos_sorted[0, at[k]] for k in ti.static(range(width))]) + speed * cos_new
+    qy = ti.Vector([pos_sorted[1, at[k]] for k in ti.static(range(width))]) + speed * sin_new
     if ti.static(boundary == PERIODIC):
         qx = wrap_periodic(qx, box)
         qy = wrap_periodic(qy, box)
@@ -521,14 +528,14 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
         sin_new, cos_new = sin_cos(new)  # trig holds sin_cos(theta) exactly, as cos_sin computes it
     change = ti.abs(wrap_pi(new - th))
     for k in ti.static(range(width)):
-        pos[0, i0 + k] = qx[k]
-        pos[1, i0 + k] = qy[k]
-        theta[i0 + k] = new[k]
-        trig[0, i0 + k] = cos_new[k]
-        trig[1, i0 + k] = sin_new[k]
-        ids[i0 + k] = i[k]
-        turn[i0 + k] = change[k]
-        updated[i0 + k] = ti.select(update[k], 1, 0)
+        pos[0, at[k]] = qx[k]
+        pos[1, at[k]] = qy[k]
+        theta[at[k]] = new[k]
+        trig[0, at[k]] = cos_new[k]
+        trig[1, at[k]] = sin_new[k]
+        ids[at[k]] = i[k]
+        turn[at[k]] = change[k]
+        updated[at[k]] = ti.select(update[k], 1, 0)
     if draw:
         for k in ti.static(range(width)):
             r = drawn_rank(i[k], bits, word_rank)
@@ -544,7 +551,7 @@ def _update_lanes(i0, width: ti.template(), t, seed, per_replica, speed, noise, 
 @ti.kernel
 def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
             max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
-            batched: ti.template(), vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
+            vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
             pos_sorted: ti.types.ndarray(),
             payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
             theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
@@ -553,13 +560,13 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
     """New headings and positions, written at each agent's slot (the arrangement becomes this step's cell order);
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // UPDATE_WIDTH):
-        _update_lanes(b * UPDATE_WIDTH, UPDATE_WIDTH, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
-                      boundary, leader, batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta,
+        _update_lanes(b * UPDATE_WIDTH, n - 1, False, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule,
+                      boundary, leader, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta,
                       trig, ids, turn, updated, draw, bits, word_rank, drawn)
-    for s in range(n // UPDATE_WIDTH * UPDATE_WIDTH, n):
-        _update_lanes(s, 1, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                      batched, vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn,
-                      updated, draw, bits, word_rank, drawn)
+    for b in range(ti.select(n % UPDATE_WIDTH > 0, 1, 0)):  # the last n % UPDATE_WIDTH agents, as one block
+        _update_lanes(n // UPDATE_WIDTH * UPDATE_WIDTH + b, n - 1, True, t, seed, per_replica, speed, noise, box,
+                      max_turn, inv_g, rule, boundary, leader, vectorial, wrap, id_sorted, pos_sorted,
+                      payload, sums, pos, theta, trig, ids, turn, updated, draw, bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -786,7 +793,7 @@ class Vicsek(GridModel):
             _neighbour_sums(g.total_buckets, g.cells_per_side, p.radius, p.box, VECTOR_COUNTED if vectorial else rule,
                             boundary, grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
-                inv_g, rule, boundary, p.leader.enabled, self.replicas > 1, vectorial, p.wrap_headings,
+                inv_g, rule, boundary, p.leader.enabled, vectorial, p.wrap_headings,
                 grid.id_sorted, grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
@@ -801,7 +808,7 @@ class Vicsek(GridModel):
                 grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.nbr, self.rings)
         _list_sums(self.n_total, p.k, rule, self.nbr, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
-                inv_g, rule, g.boundary, p.leader.enabled, self.replicas > 1, p.noise_type == "vectorial",
+                inv_g, rule, g.boundary, p.leader.enabled, p.noise_type == "vectorial",
                 p.wrap_headings, grid.id_sorted, grid.pos_sorted, self.payload, self.sums, self.pos, self.theta,
                 self.trig, self.ids, self.turn, self.updated, *self._draw_arguments(3, 2))
 
