@@ -68,11 +68,6 @@ LAMBDA2_MAX = 1000
 _SPEED_RAMP = np.array([[96, 110, 255], [0, 190, 255], [40, 215, 110], [240, 215, 40], [255, 80, 60]], dtype=np.float64)
 
 
-def potential_np(r2: np.ndarray, d2: float) -> np.ndarray:
-    """V(r) = d^2 / r^2 + ln(r^2) from the squared distance (Definition 2)."""
-    return d2 / r2 + np.log(r2)
-
-
 def _speed_palette(levels: int) -> np.ndarray:
     """The ramp at `levels` evenly spaced points of [0, 1], (levels, 3) uint8."""
     t = np.linspace(0.0, 1.0, levels) * (len(_SPEED_RAMP) - 1)
