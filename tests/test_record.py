@@ -499,7 +499,8 @@ def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, pa
     moved = state["x"][selected].astype(np.float64) - before[selected]
     if world.boundary == "periodic":
         moved -= world.box * np.round(moved / world.box)
-    length = arrow_length(world.box, drawn_count, dim)
+    length = arrow_length(world.box, drawn_count, dim, spread=pos if world.boundary == "open" else None)
+    assert _last(batches["/world/agents/headings"], "arrow_length") == pytest.approx([length])
     expected = moved / world.dt / getattr(p, speed_name) * length
     np.testing.assert_allclose(vectors, expected, atol=2e-3 * length)
     assert np.max(np.linalg.norm(vectors, axis=1)) > 0.3 * length  # drawn, not vanishing

@@ -97,3 +97,37 @@ def test_loaded_step_reads_the_viewers_step_timeline() -> None:
     assert loaded_step(state) == 1180
     assert loaded_step(state, "time") is None  # a duration timeline is no sequence
     assert loaded_step(b"\nKabout:recording?app_id=tflock") is None  # nothing loaded yet
+
+
+class _FakePage:
+    """A page whose viewer starts after `start` polls and streams one step per poll up to `last`; its picture
+    stays the same throughout (the loading screen, then a stalled half-loaded run on a busy machine)."""
+
+    def __init__(self, start: int, last: int) -> None:
+        self.polls, self.start, self.last = 0, start, last
+        self.picture = b"the same picture"
+
+    def evaluate(self, script: str) -> object:
+        self.polls += 1
+        if self.polls <= self.start:
+            return None
+        step = min(self.polls - self.start, self.last)
+        return list(b"\n\x06\n\x04step\x10\x01\x1a\x02\x08" + bytes([step]))
+
+    def screenshot(self, timeout: float) -> bytes:
+        return self.picture
+
+
+def test_wait_until_loaded_does_not_take_a_still_picture_for_a_loaded_run() -> None:
+    """Identical pictures count only once the viewer has started and its step timeline has reached the last frame:
+    a loading screen or a stalled half-loaded run is not reported as loaded."""
+    from tflock.screenshot import _wait_until_loaded
+
+    page = _FakePage(start=3, last=5)
+    assert _wait_until_loaded(page, timeout_s=5.0, last_step=5, quiet_s=0.001) is None
+    assert page.polls >= 3 + 5 + 1  # waited for the start, every step, then two equal pictures at the last step
+    stuck = _FakePage(start=3, last=2)  # the viewer stops at step 2 of 5
+    why = _wait_until_loaded(stuck, timeout_s=0.2, last_step=5, quiet_s=0.001)
+    assert why is not None and "step 2 of 5" in why
+    never = _FakePage(start=10**9, last=0)
+    assert "not started" in _wait_until_loaded(never, timeout_s=0.1, last_step=5, quiet_s=0.001)

@@ -6,7 +6,9 @@ recording never load Rerun.
 The arrow convention, the same for every model: an agent's arrow is its velocity over the step just made,
 ``(x(t) - x(t - 1)) / dt`` (up to a boundary's wrap or mirror), divided by the model's reference speed (Vicsek's and
 Li-Wang's v0, Tanner's initial speed bound, the formation's |vout|) and drawn ``arrow_length`` scene units long
-per unit of it: a full-speed agent's arrow has length ``arrow_length`` (see :func:`arrow_length`).
+per unit of it: a full-speed agent's arrow has length ``arrow_length`` (see :func:`arrow_length`). In a box the
+length is fixed for the whole recording; in open space it follows the swarm's extent once the swarm has spread beyond
+its initial square (the view zooms out with it), and each frame's length is logged with its arrows.
 """
 
 from __future__ import annotations
@@ -62,12 +64,17 @@ class ColorLegend:
 HEADING_LEGEND = ColorLegend("agents: heading", wheel=True)
 
 
-def arrow_length(box: float, drawn: int, dim: int = 2) -> float:
-    """Scene length of a full-speed agent's arrow: 0.6 of the spacing of the drawn agents in the box (so that arrows
-    of neighbouring agents do not cover each other), at most 1/30 of the box (about 30 px when the box fills a
-    900 px view)."""
-    spacing = box / max(drawn, 1) ** (1.0 / dim)
-    return float(min(0.6 * spacing, box / 30.0))
+def arrow_length(box: float, drawn: int, dim: int = 2, spread: np.ndarray | None = None) -> float:
+    """Scene length of a full-speed agent's arrow: 0.6 of the spacing of the drawn agents in a cube of side L (so
+    that arrows of neighbouring agents do not cover each other), at most L / 30 (about 30 px when the swarm fills a
+    900 px view). L is the box; in open space pass the drawn agents' positions as ``spread``: L is then the larger of
+    the box and their extent (the longest side of their bounding box), so that arrows stay legible while a swarm
+    spreads far beyond its initial square and the viewer zooms out to show it."""
+    side = box
+    if spread is not None and len(spread):
+        side = max(side, float(np.max(np.ptp(np.asarray(spread, dtype=np.float64), axis=0))))
+    spacing = side / max(drawn, 1) ** (1.0 / dim)
+    return float(min(0.6 * spacing, side / 30.0))
 
 
 @dataclass

@@ -6,11 +6,12 @@ default view (docs/recordings.md shows and explains it):
 
 * timelines ``step`` (sequence) and ``time`` (duration, ``step * dt`` seconds); ``log_time`` is disabled so a
   recording only depends on what was logged;
-* ``world/agents`` (Points2D/3D, sizes in UI points so that agents show at any box size; hovering one shows its
-  agent id), ``world/agents/headings`` (Arrows2D/3D, the velocity over the step just made, see
-  :mod:`tflock.frame`), ``world/agents/trails`` (optional), ``world/edges`` (thin translucent LineStrips among the
-  drawn agents), ``world/leader`` (+ ``world/leader/heading``), ``world/<marker>``, ``world/bounds`` (static);
-  in 2D ``world`` carries a transform that flips y, so that y points up as in the simulation's frame;
+* ``world/agents`` (Points2D/3D, sizes in UI points so that agents show at any box size; hovering one shows its agent
+  id), ``world/agents/headings`` (Arrows2D/3D, the velocity over the step just made, with the frame's
+  ``arrow_length``, see :mod:`tflock.frame`), ``world/agents/trails`` (optional), ``world/edges`` (thin translucent
+  LineStrips among the drawn agents), ``world/leader`` (+ ``world/leader/heading``), ``world/<marker>``,
+  ``world/bounds`` (static); in 2D ``world`` carries a transform that flips y, so that y points up as in the
+  simulation's frame;
 * the coarse-grained field of all agents (:mod:`tflock.field`): a SegmentationImage under the agents at
   ``world/field`` (2D), or three projections ``field/xy``, ``field/xz``, ``field/yz`` beside the 3D view;
 * ``legend``: what the colours mean (heading wheel, speed ramp or categories; the field's colours);
@@ -612,6 +613,7 @@ class Recorder:
             Arrows(origins=pos, vectors=dirs * np.float32(frame.arrow_length), colors=colors,
                    radii=rr.Radius.ui_points(max(0.5, 0.4 * radius)),
                    **({"draw_order": DRAW_ARROWS} if dim == 2 else {})),
+            rr.AnyValues(arrow_length=float(frame.arrow_length)),  # scene length of a full-speed arrow
         )
         if self.trail:
             self._log_trail(pos, colors, Strips)

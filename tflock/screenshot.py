@@ -53,7 +53,8 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
     """Serve `path` in the web viewer, open it in headless Chromium and save one PNG per entry of `shots`
     (taken `settle_s` apart, after the viewer has loaded the recording: its step timeline reaches the recording's
     last frame and the picture stops changing, see :func:`_wait_until_loaded`). Returns the PNG paths; raises
-    RuntimeError when a requirement is missing or the viewer does not come up."""
+    RuntimeError when a requirement is missing, the viewer does not come up, or it has not finished loading within
+    `timeout_s` (the PNGs are then still written, showing what had loaded)."""
     from tflock.record import read_recording, serve_web
 
     reason = missing_requirement()
@@ -73,7 +74,7 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
             page.on("console", lambda msg: console.append(f"{msg.type}: {msg.text}"))
             page.goto(url, timeout=timeout_s * 1000)
             page.wait_for_selector("canvas", timeout=timeout_s * 1000)
-            _wait_until_loaded(page, timeout_s, last_step)
+            unfinished = _wait_until_loaded(page, timeout_s, last_step)
             for shot in shots:
                 time.sleep(settle_s)
                 shot.parent.mkdir(parents=True, exist_ok=True)
@@ -82,6 +83,9 @@ def take_screenshots(path: Path, shots: list[Path], *, width: int = 1600, height
             browser.close()
     for shot in shots:
         shot.with_suffix(".console.txt").write_text("\n".join(console) + "\n", encoding="utf-8")
+    if unfinished:
+        saved = ", ".join(str(shot) for shot in shots)
+        raise RuntimeError(f"{unfinished}: {saved} may show a partly loaded recording (raise --timeout)")
     return shots
 
 
@@ -121,37 +125,55 @@ def loaded_step(state: bytes, timeline: str = "step") -> int | None:
     return found
 
 
-def _wait_until_loaded(page, timeout_s: float, last_step: int | None = None, quiet_s: float = 6.0) -> None:
-    """Wait until the viewer has loaded the recording (or `timeout_s` passes): the viewer streams the file over
-    gRPC and follows the newest step, so it has loaded once its step timeline reaches `last_step` (the last frame;
-    read from the viewer's state, :func:`loaded_step`) and two screenshots `quiet_s` apart are identical. Without
-    a `last_step`, or where the state cannot be read, the identical screenshots alone count. A screenshot that does
-    not come within what is left of `timeout_s` (software WebGL on a busy machine) counts as not loaded yet.
+#: the viewer's state where the page has one: None before the viewer has started (``window._handle`` is set once
+#: its WebAssembly runs), a string where this viewer build offers no state, else the state's bytes
+_STATE_JS = ("() => !window._handle ? null : (typeof window._handle.viewer_state !== 'function' ? 'no state'"
+             " : Array.from(window._handle.viewer_state()))")
 
-    A 10,000-step recording took minutes to load on a busy 2-core machine: a screenshot taken at a fixed time can
-    show a half-loaded run."""
+
+def _wait_until_loaded(page, timeout_s: float, last_step: int | None = None, quiet_s: float = 6.0) -> str | None:
+    """Wait until the viewer has loaded the recording; return None once it has, or why not when `timeout_s` has
+    passed. The viewer streams the file over gRPC and follows the newest step, so it has loaded once its step
+    timeline reaches `last_step` (the last frame; read from the viewer's state, :func:`loaded_step`) and two
+    screenshots `quiet_s` apart are identical. Before the viewer has started, or until its timeline reaches
+    `last_step`, identical pictures do not count (a busy machine can hold the loading screen, or a half-loaded run,
+    still for longer than `quiet_s`). Only a viewer build without a readable state is judged by the pictures alone,
+    as is a file without a `last_step`. A screenshot that does not come within what is left of `timeout_s`
+    (software WebGL on a busy machine) counts as not loaded yet."""
     from playwright.sync_api import Error as PlaywrightError
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     deadline = time.monotonic() + timeout_s
-    last = None
+    last, reached, started = None, None, False
     while time.monotonic() < deadline:
         time.sleep(quiet_s)
         if last_step is not None:
             try:
-                state = bytes(page.evaluate("() => Array.from(window._handle.viewer_state())"))
-                reached = loaded_step(state)
-            except PlaywrightError:  # no handle (another viewer build): the pictures decide
-                last_step = reached = None
-            if reached is not None and reached < last_step:
+                state = page.evaluate(_STATE_JS)
+            except PlaywrightError:  # the page is navigating or busy: ask again
                 continue
+            if state is None:
+                continue
+            started = True
+            if isinstance(state, str):  # a viewer build without a readable state: the pictures decide
+                last_step = None
+            else:
+                reached = loaded_step(bytes(state))
+                if reached is None or reached < last_step:
+                    last = None
+                    continue
         try:
             now = page.screenshot(timeout=max(1.0, deadline - time.monotonic()) * 1000)
         except PlaywrightTimeout:
             continue
         if now == last:
-            return
+            return None
         last = now
+    if last_step is not None and not started:
+        return f"the viewer had not started after {timeout_s:g} s"
+    if last_step is not None and (reached is None or reached < last_step):
+        return f"the viewer had loaded up to step {reached} of {last_step} after {timeout_s:g} s"
+    return f"the picture was still changing after {timeout_s:g} s"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -390,7 +390,8 @@ class Adaptive(GridModel):
         return Frame(
             positions=rows[:, : p.dim].astype(np.float32),
             directions=velocity.astype(np.float32),
-            arrow_length=arrow_length(p.box, len(selected), p.dim),
+            arrow_length=arrow_length(p.box, len(selected), p.dim,
+                                      spread=rows[:, : p.dim] if p.boundary == "open" else None),
             edges=self._edges_among(rows[:, : p.dim], max_edges, p.radius),
             ids=selected,
             fields=self._field_images(field_size, self.pos, self.dirs, UNIT_VECTORS, self.grid),

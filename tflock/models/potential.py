@@ -788,7 +788,7 @@ class Potential(GridModel):
             return Frame(
                 positions=np.asarray(pos, dtype=np.float32),
                 directions=np.asarray(vel / p.speed, dtype=np.float32),
-                arrow_length=arrow_length(p.box, len(selected), dim),
+                arrow_length=arrow_length(p.box, len(selected), dim, spread=pos),  # open space
                 colors=speed_colors(np.sqrt((vel * vel).sum(axis=1)), p.speed),
                 edges=np.asarray(edges, dtype=np.float32),
                 ids=selected,

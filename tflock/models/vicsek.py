@@ -910,7 +910,7 @@ class Vicsek(GridModel):
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
-            arrow_length=arrow_length(p.box, len(selected)),
+            arrow_length=arrow_length(p.box, len(selected), spread=drawn[0] if p.boundary == "open" else None),
             colors=colors,
             edges=self._edges_among(drawn[0], max_edges, p.radius),
             leader=leader,

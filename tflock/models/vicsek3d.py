@@ -294,7 +294,7 @@ class Vicsek3D(GridModel):
         return Frame(
             positions=rows[:, :3].astype(np.float32),
             directions=rows[:, 3:].astype(np.float32),
-            arrow_length=arrow_length(p.box, m, 3),
+            arrow_length=arrow_length(p.box, m, 3, spread=rows[:, :3] if p.boundary == "open" else None),
             edges=self._edges_among(rows[:, :3], max_edges, p.radius),
             ids=selected,
             fields=self._field_images(field_size, self.pos, self.dirs, UNIT_VECTORS, self.grid),
