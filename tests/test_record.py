@@ -122,6 +122,27 @@ def test_zero_edges_explicit_colors_and_subset_metrics(tmp_path: Path) -> None:
     assert (tmp_path / "m.csv").read_text().splitlines() == ["step,order,speed", "0,0.5,"]
 
 
+def test_metric_rows_sent_as_columns_keep_their_steps_and_times(tmp_path: Path) -> None:
+    """Metric rows gathered and handed to Rerun as columns (several batches, a series with gaps) read back with the
+    step, the time (step * dt) and the value of each row, including the rows still gathered when the run closes."""
+    from tflock.record import METRIC_BATCH_ROWS
+
+    path, dt = tmp_path / "columns.rrd", 0.25
+    steps = np.arange(2 * METRIC_BATCH_ROWS + 37)
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0, dt=dt), metrics=METRICS,
+                  path=path) as rec:
+        for step in steps:
+            rec.log_metrics(int(step), {"order": step / 1000.0, **({"speed": -float(step)} if step % 3 else {})})
+    batches = _chunks(path)
+    for name, kept, value in (("order", steps, steps / 1000.0), ("speed", steps[steps % 3 != 0], -steps)):
+        rows = sorted((s, t, v) for b in batches[f"/metrics/{name}"] if "Scalars:scalars" in b.schema.names
+                      for s, t, v in zip(b.column("step").to_pylist(), b.column("time").to_pylist(),
+                                         b.column("Scalars:scalars").to_pylist(), strict=True))
+        assert [r[0] for r in rows] == kept.tolist()
+        assert [r[1].total_seconds() for r in rows] == pytest.approx((kept * dt).tolist())
+        assert [r[2][0] for r in rows] == pytest.approx(np.asarray(value)[kept].tolist())
+
+
 def test_metrics_table_only_and_validation(tmp_path: Path) -> None:
     table = tmp_path / "only.csv"
     with Recorder(model="m", config_toml="", world=WorldSpec(3, "open", 2.0), metrics=METRICS,
