@@ -346,6 +346,7 @@ class Recorder:
         self._leader_drawn = False
         self._leader_heading_drawn = False
         self._ids: np.ndarray | None = None  # agent ids of the rows last logged
+        self._arrow_length: float | None = None  # the arrow length last logged
         self._trail: list[np.ndarray] = []  # the drawn agents' last positions, oldest first
         self._traces: dict[str, _Trace] = {n: _Trace() for n in self.metrics}  # where each plot's legend goes
         self._first_values: dict[str, float] = {}  # each metric's first value, while it has not changed
@@ -619,8 +620,10 @@ class Recorder:
             Arrows(origins=pos, vectors=dirs * np.float32(frame.arrow_length), colors=colors,
                    radii=rr.Radius.ui_points(max(0.5, 0.4 * radius)),
                    **({"draw_order": DRAW_ARROWS} if dim == 2 else {})),
-            rr.AnyValues(arrow_length=float(frame.arrow_length)),  # scene length of a full-speed arrow
         )
+        if frame.arrow_length != self._arrow_length:  # scene length of a full-speed arrow, logged when it changes
+            rec.log(HEADINGS, rr.AnyValues(arrow_length=float(frame.arrow_length)))
+            self._arrow_length = frame.arrow_length
         if self.trail:
             self._log_trail(pos, colors, Strips)
         if edges is not None or self._edges_drawn:  # an empty batch clears edges drawn at earlier steps
