@@ -29,8 +29,21 @@ def test_signatures_pick_their_instances(cpu_engine):
     assert len(_scaled._primal._tflock_plans) == 4  # two dtypes x two template values, each planned once
 
 
+def test_numpy_scalars_take_the_planned_path(cpu_engine):
+    """NumPy scalar arguments (a model's host arithmetic yields them) are set by the plan, with the values Taichi's
+    own call would set."""
+    src, dst = ti.ndarray(ti.f64, 3), ti.ndarray(ti.f64, 3)
+    src.from_numpy(np.array([1.0, -2.0, 3.5]))
+    for factor in (np.float64(0.1), np.float32(0.1), np.int64(3), np.int32(-2)):
+        for _ in range(2):
+            _scaled(np.int64(3), factor, False, src, dst)
+            assert np.array_equal(dst.to_numpy(), np.array([1.0, -2.0, 3.5]) * np.float64(factor))
+    plans = [p for key, p in _scaled._primal._tflock_plans.items() if key[0] is np.int64]
+    assert len(plans) == 4 and all(p.valid for p in plans)
+
+
 @pytest.mark.parametrize("model,params", [("vicsek", {"n": 100, "box": 7.0, "noise": 0.4}),
-                                          ("potential", {"n": 40})])
+                                          ("potential", {"n": 40}), ("formation", {"fail_prob": 0.5})])
 def test_runs_are_bit_identical_to_taichis_own_call(make_sim, monkeypatch, model, params):
     fast = make_sim(model=model, params=params, steps=25, seed=4, log={"metrics_every": 5})
     fast.run()

@@ -14,9 +14,9 @@ set the arguments with one precomputed setter each and launch the same compiled 
 every result, is the same bit for bit; only the Python work around it shrinks.
 
 A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
-ndarray arguments that are Taichi scalar ndarrays without gradients, scalar arguments of a primitive type, no
-return value and no autodiff or tape in use; every other call (NumPy arrays passed as ndarrays, fields, structs,
-keyword arguments, ...) takes Taichi's own path, every time.
+ndarray arguments that are Taichi scalar ndarrays without gradients, scalar arguments of a primitive type (Python
+or NumPy scalars), no return value and no autodiff or tape in use; every other call (NumPy arrays passed as
+ndarrays, fields, structs, keyword arguments, ...) takes Taichi's own path, every time.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from taichi.lang import kernel_impl
 from taichi.lang._ndarray import ScalarNdarray
 from taichi.lang.kernel_impl import Kernel
@@ -32,7 +33,8 @@ from taichi.types import ndarray_type, primitive_types, template
 from taichi.types.utils import is_signed
 
 _TEMPLATE_VALUES = (bool, int, float, str, type(None))
-_SCALARS = (bool, int, float)
+#: scalar arguments a plan sets (NumPy's scalars too: a model's host arithmetic often yields them)
+_SCALARS = (bool, int, float, np.float64, np.float32, np.int64, np.int32)
 
 
 def _signature(kernel: Kernel, args: tuple) -> tuple | None:
