@@ -42,6 +42,22 @@ def test_numpy_scalars_take_the_planned_path(cpu_engine):
     assert len(plans) == 4 and all(p.valid for p in plans)
 
 
+def test_numpy_arrays_take_the_planned_path(cpu_engine):
+    """C-contiguous NumPy arrays are set by the plan (read and written in place, as Taichi's own call does); other
+    layouts take Taichi's own path, which copies a Fortran-ordered array and writes it back."""
+    for real in (np.float32, np.float64):
+        src, dst = np.arange(6, dtype=real), np.zeros(6, dtype=real)
+        for _ in range(2):
+            _scaled(6, 2.0, True, src, dst)
+            assert np.array_equal(dst, -2.0 * np.arange(6, dtype=real))
+            dst[:] = 0
+    planned = [p for key, p in _scaled._primal._tflock_plans.items() if key[3][0] is np.ndarray]
+    assert len(planned) == 2 and all(p.valid for p in planned)
+    strided = np.zeros(12)[::2]  # not contiguous: Taichi's own path, which refuses it
+    with pytest.raises(ValueError, match="contiguous"):
+        _scaled(6, 1.0, False, np.arange(6.0), strided)
+
+
 @pytest.mark.parametrize("model,params", [("vicsek", {"n": 100, "box": 7.0, "noise": 0.4}),
                                           ("potential", {"n": 40}), ("formation", {"fail_prob": 0.5})])
 def test_runs_are_bit_identical_to_taichis_own_call(make_sim, monkeypatch, model, params):

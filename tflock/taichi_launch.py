@@ -14,9 +14,10 @@ set the arguments with one precomputed setter each and launch the same compiled 
 every result, is the same bit for bit; only the Python work around it shrinks.
 
 A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
-ndarray arguments that are Taichi scalar ndarrays without gradients, scalar arguments of a primitive type (Python
-or NumPy scalars), no return value and no autodiff or tape in use; every other call (NumPy arrays passed as
-ndarrays, fields, structs, keyword arguments, ...) takes Taichi's own path, every time.
+ndarray arguments that are Taichi scalar ndarrays without gradients or C-contiguous NumPy arrays of scalars (set as
+Taichi sets them: their address, size and shape), scalar arguments of a primitive type (Python or NumPy scalars), no
+return value and no autodiff or tape in use; every other call (fields, structs, keyword arguments, NumPy arrays
+that are not C-contiguous, ...) takes Taichi's own path, every time.
 """
 
 from __future__ import annotations
@@ -50,6 +51,10 @@ def _signature(kernel: Kernel, args: tuple) -> tuple | None:
             if arg.grad is not None:
                 return None
             key.append((kind, arg.dtype, len(arg.shape)))
+        elif kind is np.ndarray:
+            if not arg.flags.c_contiguous:
+                return None
+            key.append((kind, arg.dtype, arg.ndim))
         else:
             key.append(kind)
     return tuple(key)
@@ -59,6 +64,10 @@ def _setter(annotation: Any, kind: type, index: tuple[int]) -> Callable[[Any, An
     """How to set one argument of the admitted kinds on a launch context, or None."""
     if kind is ScalarNdarray and isinstance(annotation, ndarray_type.NdarrayType):
         return lambda ctx, v: ctx.set_arg_ndarray(index, v.arr)
+    if kind is np.ndarray and isinstance(annotation, ndarray_type.NdarrayType):
+        if annotation.dtype is not None and id(annotation.dtype) not in primitive_types.type_ids:
+            return None  # an ndarray of vectors or matrices: Taichi strips the element's axes from the shape
+        return lambda ctx, v: ctx.set_arg_external_array_with_shape(index, int(v.ctypes.data), v.nbytes, v.shape, 0)
     if kind not in _SCALARS:
         return None
     if id(annotation) in primitive_types.real_type_ids:
