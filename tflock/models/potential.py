@@ -142,8 +142,8 @@ def _velocity_columns(dim: int) -> int:
 def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), centre: ti.types.ndarray(),
                     with_mismatch: ti.template(), partial: ti.types.ndarray()):
     """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
-    headings of the velocities; with `with_mismatch`, |v_i - centre| too (centre: the mean velocity, from a
-    first launch). The blocks are added in NumPy: the same whatever the threads."""
+    headings of the velocities; with `with_mismatch`, only |v_i - centre| (centre: the mean velocity, from a first
+    launch whose columns it leaves as they are). The blocks are added in NumPy: the same whatever the threads."""
     for blk in range(partial.shape[0]):
         lo = blk * BLOCK
         hi = ti.min(n, lo + BLOCK)
@@ -158,28 +158,31 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
         c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
         for i in range(lo, hi):
             v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
-            sq = v.norm_sqr()
-            speed = ti.sqrt(sq)
-            total += v
-            squares += sq
-            speeds += speed
-            if speed > 0:
-                unit += v / speed
-            fast = ti.max(fast, speed)
-            slow = ti.min(slow, speed)
             if ti.static(with_mismatch):
                 gap = (v - c).norm()
                 gaps += gap
                 widest = ti.max(widest, gap)
-        for a in ti.static(range(dim)):
-            partial[blk, a] = total[a]
-            partial[blk, dim + 2 + a] = unit[a]
-        partial[blk, dim] = speeds
-        partial[blk, dim + 1] = squares
-        partial[blk, 2 * dim + 2] = gaps
-        partial[blk, 2 * dim + 3] = fast
-        partial[blk, 2 * dim + 4] = slow
-        partial[blk, 2 * dim + 5] = widest
+            else:
+                sq = v.norm_sqr()
+                speed = ti.sqrt(sq)
+                total += v
+                squares += sq
+                speeds += speed
+                if speed > 0:
+                    unit += v / speed
+                fast = ti.max(fast, speed)
+                slow = ti.min(slow, speed)
+        if ti.static(with_mismatch):
+            partial[blk, 2 * dim + 2] = gaps
+            partial[blk, 2 * dim + 5] = widest
+        else:
+            for a in ti.static(range(dim)):
+                partial[blk, a] = total[a]
+                partial[blk, dim + 2 + a] = unit[a]
+            partial[blk, dim] = speeds
+            partial[blk, dim + 1] = squares
+            partial[blk, 2 * dim + 3] = fast
+            partial[blk, 2 * dim + 4] = slow
 
 
 @ti.kernel
