@@ -357,6 +357,9 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
         assert (got["components"] == 1) == (shape == "flock")
         for name in ("valency_mean", "valency_min", "valency_max", "connected"):
             assert got[name] == expected[name], name
+        if t == 0:  # then every params.lambda2_every steps; 0 exactly for a graph of several components
+            assert got["lambda2"] == pytest.approx(expected["lambda2"], rel=1e-9, abs=1e-9)
+            assert (got["lambda2"] == 0.0) == (shape == "clusters")
         assert got["potential_energy"] == pytest.approx(expected["potential_energy"], rel=10 * TOL, abs=TOL)
         observed.advance(1)
         plain.advance(1)

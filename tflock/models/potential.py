@@ -784,14 +784,18 @@ class Potential(GridModel):
         np.fill_diagonal(a, False)
         return a
 
-    def _lambda2_now(self) -> float:
+    def _lambda2_now(self, components: float) -> float:
+        """lambda_2 of the graph Laplacian, recomputed every ``lambda2_every`` steps: 0 exactly for a graph of more
+        than one component (the multiplicity of the eigenvalue 0 is the number of components, which the metrics
+        count exactly), else from NumPy's eigvalsh, O(N^3)."""
         step, every = self.step_index, self.params.lambda2_every
         last = self._lambda2_step
         stale = last < 0 or (self.switching and (step % every == 0 or step < last))
         if stale:  # a fixed graph's lambda_2 never changes
-            a = self.adjacency().astype(np.float64)
-            laplacian = np.diag(a.sum(axis=1)) - a
-            self._lambda2_value = float(np.linalg.eigvalsh(laplacian)[1]) if len(a) > 1 else 0.0
+            self._lambda2_value = 0.0
+            if components == 1.0 and self.params.n > 1:
+                a = self.adjacency().astype(np.float64)
+                self._lambda2_value = float(np.linalg.eigvalsh(np.diag(a.sum(axis=1)) - a)[1])
             self._lambda2_step = step
         return self._lambda2_value
 
@@ -926,7 +930,7 @@ class Potential(GridModel):
             "connected": float(components == 1.0),
         }
         if n <= LAMBDA2_MAX:
-            out["lambda2"] = self._lambda2_now()
+            out["lambda2"] = self._lambda2_now(components)
         if n <= PER_AGENT_MAX:
             ids = self.ids.to_numpy()
             agent_speed = np.empty(n)
