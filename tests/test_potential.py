@@ -367,6 +367,24 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
             assert np.array_equal(value, plain.state()[key]), f"{key} after step {t + 1}"
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
+def test_frame_after_a_metrics_step_is_the_plain_runs(engine):
+    """A step after the metrics pass only moves the agents and writes the announced frame's rows: the frame equals
+    that of a run without metrics (whose frame gathers its rows from the grid)."""
+    cfg = config(n=600, box=40.0, topology="switching")
+    observed, plain = Potential(cfg.params, cfg.seed, engine), Potential(cfg.params, cfg.seed, engine)
+    selected = np.arange(0, 600, 3)
+    for _ in range(3):
+        observed.metrics()
+        observed.draw_next(selected)
+        observed.advance(1)
+        plain.advance(1)
+        assert observed._drawn is not None and observed._drawn[0] == observed.step_index  # rows by the move
+        a, b = observed.frame(selected, 400), plain.frame(selected, 400)
+        for name in ("positions", "directions", "edges", "colors"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
 def test_speed_colours_follow_the_ramp():
     """The looked-up colours stay within one level of the ramp interpolated per agent; its ends are exact."""
     speed = np.concatenate([np.linspace(0.0, 2.0, 20001), [0.0, 1.0, 5.0]])

@@ -379,8 +379,9 @@ def _lane_r2(k, p, dim: ti.template(), pos_sorted: ti.template()):
 
 
 # The metrics' sums over a span of candidates, for LANES agents at once (p: (dim, LANES), a column an agent with id
-# ids[q]), in loops of their own, each with few sums: a loop that carries many vectors is not vectorised. Each loop
-# has an exit that never fires, which keeps LLVM's loop vectoriser off it, as in _accelerations.
+# ids[q]), in loops of their own beside _accelerations': one loop carrying the accelerations and all these sums ran
+# several times slower than the loops apart. Each loop has an exit that never fires, which keeps LLVM's loop
+# vectoriser off it, as in _accelerations.
 
 @ti.func
 def _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template(),
