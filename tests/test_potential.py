@@ -304,6 +304,87 @@ def test_lane_wise_step_equals_per_agent_step(engine, dim):
         assert np.all(np.abs(a - b) <= 8 * ulp * (scale + np.abs(b))), key
 
 
+def _lane_pass_state(dim, shape):
+    """Positions of a sparse field (many small clusters) or a jittered lattice (one dense cluster), several
+    stripes of grid layers where they fit, and random velocities."""
+    rng = np.random.default_rng(7 + dim)
+    if shape == "clusters":
+        side = 40.0 if dim == 2 else 16.0
+        x = rng.random((600, dim)) * side
+    else:
+        per_side, spacing = (25, 0.8) if dim == 2 else (9, 0.9)
+        x = np.stack(np.meshgrid(*[np.arange(per_side)] * dim, indexing="ij"), axis=-1).reshape(-1, dim) * spacing
+        x = x + rng.uniform(-0.1, 0.1, x.shape)
+        side = per_side * spacing
+    return x, rng.normal(size=x.shape), side
+
+
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("shape", ["clusters", "flock"])
+def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engine, dim, shape):
+    """The metrics pass that also sums the next step (each agent's valency, energy and nearest distance, the
+    components by stripes of grid layers and their cross-stripe joins) gives the oracle's numbers, and the steps
+    after it are bit for bit those of a run without metrics: many small clusters, and one dense cluster."""
+    from tflock.neighbors import BOUNDED
+
+    x, v, side = _lane_pass_state(dim, shape)
+    n = len(x)
+    cfg = config(n=n, box=side, dim=dim, topology="switching", min_separation=0.0)
+    p = cfg.params
+    observed, plain = Potential(p, cfg.seed, engine), Potential(p, cfg.seed, engine)
+    observed.set_state({"x": x, "v": v}, 0)
+    plain.set_state({"x": x, "v": v}, 0)
+    for t in range(3):
+        state = observed.state()
+        observed.lyapunov()  # the pass alone: min_distance of a small swarm comes from all pairs, not from it
+        assert observed.grid.geometry.boundary == BOUNDED and observed._next_step.summed is not None
+        if t == 0 and shape == "clusters":
+            assert observed.components.stripes()[0] > 1  # the cross-stripe joins run
+        xs = state["x"].astype(np.float64)
+        r2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(axis=2)
+        np.fill_diagonal(r2, np.inf)
+        near = r2 < p.radius**2
+        assert np.array_equal(observed.valency.to_numpy(), near.sum(axis=1)), f"valency at step {t}"
+        nearest = np.sqrt(np.minimum(r2.min(axis=1), p.radius**2))
+        assert gap(observed.nearest.to_numpy(), nearest) < TOL, f"nearest at step {t}"
+        pair_v = p.desired_distance**2 / r2 + np.log(r2) - (p.desired_distance**2 / p.radius**2 + np.log(p.radius**2))
+        energy = 0.5 * np.where(near, pair_v, 0.0).sum(axis=1)
+        assert gap(observed.energy.to_numpy(), energy) < 10 * TOL, f"energy at step {t}"
+        expected = ref.potential_metrics(state["x"], state["v"], p)
+        got = observed.metrics()
+        assert got["components"] == expected["components"], f"components at step {t}"
+        assert (got["components"] == 1) == (shape == "flock")
+        for name in ("valency_mean", "valency_min", "valency_max", "connected"):
+            assert got[name] == expected[name], name
+        if t == 0:  # then every params.lambda2_every steps; 0 exactly for a graph of several components
+            assert got["lambda2"] == pytest.approx(expected["lambda2"], rel=1e-9, abs=1e-9)
+            assert (got["lambda2"] == 0.0) == (shape == "clusters")
+        assert got["potential_energy"] == pytest.approx(expected["potential_energy"], rel=10 * TOL, abs=TOL)
+        observed.advance(1)
+        plain.advance(1)
+        for key, value in observed.state().items():
+            assert np.array_equal(value, plain.state()[key]), f"{key} after step {t + 1}"
+
+
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
+def test_frame_after_a_metrics_step_is_the_plain_runs(engine):
+    """A step after the metrics pass only moves the agents and writes the announced frame's rows: the frame equals
+    that of a run without metrics (whose frame gathers its rows from the grid)."""
+    cfg = config(n=600, box=40.0, topology="switching")
+    observed, plain = Potential(cfg.params, cfg.seed, engine), Potential(cfg.params, cfg.seed, engine)
+    selected = np.arange(0, 600, 3)
+    for _ in range(3):
+        observed.metrics()
+        observed.draw_next(selected)
+        observed.advance(1)
+        plain.advance(1)
+        assert observed._drawn is not None and observed._drawn[0] == observed.step_index  # rows by the move
+        a, b = observed.frame(selected, 400), plain.frame(selected, 400)
+        for name in ("positions", "directions", "edges", "colors"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
 def test_speed_colours_follow_the_ramp():
     """The looked-up colours stay within one level of the ramp interpolated per agent; its ends are exact."""
     speed = np.concatenate([np.linspace(0.0, 2.0, 20001), [0.0, 1.0, 5.0]])

@@ -177,15 +177,6 @@ class NeighbourGraph:
             self._components = Components(self.grid, radius, self.strict)
         return self._components
 
-    def pairs_parent(self, radius: float) -> ti.Ndarray:
-        """The union-find array (over the grid's slots) for a model kernel that makes the pairs pass of the
-        components in its own neighbour loop; then :meth:`joined_components` (CPU arches)."""
-        return self._found(radius).parent
-
-    def joined_components(self, radius: float) -> tuple[int, int]:
-        """:meth:`components` from the pairs pass a model's kernel made into :meth:`pairs_parent`."""
-        return self._found(radius).from_joined_pairs()
-
     def components(self, radius: float, box: float, mean_degree: float | None = None) -> tuple[int, int]:
         """The number of connected components and the largest one's size; `mean_degree`, where known, picks the
         faster pass (see :class:`~tflock.components.Components`)."""

@@ -33,10 +33,20 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
-from tflock.components import union
 from tflock.engine import EngineInfo
 from tflock.field import VECTORS
 from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
+from tflock.lane_graph import (
+    NO_LABEL,
+    LaneComponents,
+    block_roots,
+    count_roots,
+    fold_label,
+    join_candidate,
+    local_root,
+    settle_block,
+    stripe_range,
+)
 from tflock.metrics import BLOCK, EXACT_PAIRS_MAX, NeighbourGraph, n_blocks, total
 from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
@@ -132,8 +142,8 @@ def _velocity_columns(dim: int) -> int:
 def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), centre: ti.types.ndarray(),
                     with_mismatch: ti.template(), partial: ti.types.ndarray()):
     """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
-    headings of the velocities; with `with_mismatch`, |v_i - centre| too (centre: the mean velocity, from a
-    first launch). The blocks are added in NumPy: the same whatever the threads."""
+    headings of the velocities; with `with_mismatch`, only |v_i - centre| (centre: the mean velocity, from a first
+    launch whose columns it leaves as they are). The blocks are added in NumPy: the same whatever the threads."""
     for blk in range(partial.shape[0]):
         lo = blk * BLOCK
         hi = ti.min(n, lo + BLOCK)
@@ -148,28 +158,31 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
         c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
         for i in range(lo, hi):
             v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
-            sq = v.norm_sqr()
-            speed = ti.sqrt(sq)
-            total += v
-            squares += sq
-            speeds += speed
-            if speed > 0:
-                unit += v / speed
-            fast = ti.max(fast, speed)
-            slow = ti.min(slow, speed)
             if ti.static(with_mismatch):
                 gap = (v - c).norm()
                 gaps += gap
                 widest = ti.max(widest, gap)
-        for a in ti.static(range(dim)):
-            partial[blk, a] = total[a]
-            partial[blk, dim + 2 + a] = unit[a]
-        partial[blk, dim] = speeds
-        partial[blk, dim + 1] = squares
-        partial[blk, 2 * dim + 2] = gaps
-        partial[blk, 2 * dim + 3] = fast
-        partial[blk, 2 * dim + 4] = slow
-        partial[blk, 2 * dim + 5] = widest
+            else:
+                sq = v.norm_sqr()
+                speed = ti.sqrt(sq)
+                total += v
+                squares += sq
+                speeds += speed
+                if speed > 0:
+                    unit += v / speed
+                fast = ti.max(fast, speed)
+                slow = ti.min(slow, speed)
+        if ti.static(with_mismatch):
+            partial[blk, 2 * dim + 2] = gaps
+            partial[blk, 2 * dim + 5] = widest
+        else:
+            for a in ti.static(range(dim)):
+                partial[blk, a] = total[a]
+                partial[blk, dim + 2 + a] = unit[a]
+            partial[blk, dim] = speeds
+            partial[blk, dim + 1] = squares
+            partial[blk, 2 * dim + 3] = fast
+            partial[blk, 2 * dim + 4] = slow
 
 
 @ti.kernel
@@ -349,71 +362,210 @@ def _grid_pairs(n: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.templa
         nearest[i] = ti.sqrt(near)
 
 
+#: the metrics pass takes the log of its product of r^2 / R^2 once it falls below this (2^-511): a stencil row's
+#: factors (one per neighbour in it) could underflow it only below 2^-1022, more than 255 neighbours at d = R / 2
+PRODUCT_FLOOR = 2.0**-511
+
+
 @ti.func
-def _pair_terms(begin, end, slots, ids, p, count, pot, product, near, roots, r2cut, d2, v_cut, dim: ti.template(),
-                id_sorted: ti.template(), pos_sorted: ti.template(), parent: ti.template()):
-    """:func:`_grid_pairs`' sums over the candidates [begin, end) for ``LANES`` agents at once (p: (dim, LANES),
-    a column an agent at slot ``slots[q]`` with id ``ids[q]``), and each lane's joins of its neighbours at smaller
-    slots into its set (``roots[q]``: a recent root of it; see :func:`tflock.components.union`). Branch-free but
-    for the joins: the potential's logarithms are summed as the log of a float64 product of r^2 / R^2 (each factor
-    in (0, 1), taken by the caller once per span)."""
+def _lane_r2(k, p, dim: ti.template(), pos_sorted: ti.template()):
+    """Squared distances from candidate k to the ``LANES`` agents p (dim, LANES), summed as the per-agent kernel's
+    norm_sqr sums them (and :func:`_accelerations`)."""
+    d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+    r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
+    for a in ti.static(range(1, dim)):
+        r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
+    return r2
+
+
+# The metrics' sums over a span of candidates, for LANES agents at once (p: (dim, LANES), a column an agent with id
+# ids[q]), in loops of their own beside _accelerations': one loop carrying the accelerations and all these sums ran
+# several times slower than the loops apart. Each loop has an exit that never fires, which keeps LLVM's loop
+# vectoriser off it, as in _accelerations.
+
+@ti.func
+def _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template(),
+               id_sorted: ti.template(), pos_sorted: ti.template()):
+    """Valency, the saturated potential's d^2 / r^2 - V(R) terms, the float64 product of r^2 / R^2 (each factor in
+    (0, 1), a product by 1 / R^2, `inv_r2cut`: a float64 division per candidate would cost more than the rest of
+    the loop; the potential's logarithms are summed as the log of the product, which the caller takes) and the
+    nearest squared distance."""
     for k in range(begin, end):
         j = id_sorted[k]
-        if j < 0:  # never: ids count from 0 (keeps LLVM's loop vectoriser off, as in _accelerations)
+        if j < 0:  # never: ids count from 0
             break
-        d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
-        r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
-        for a in ti.static(range(1, dim)):
-            r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
+        r2 = _lane_r2(k, p, dim, pos_sorted)
         inside = (r2 < r2cut) & (ids != j)
         count += ti.select(inside, 1, 0)
         near = ti.select(inside, ti.min(near, r2), near)
         pot += ti.select(inside, d2 / r2 - v_cut, 0.0)  # itself: 0 / 0, never added
-        product *= ti.select(inside, ti.cast(r2, ti.f64) / r2cut, 1.0)
-        join = inside & (k < slots) & (parent[k] != roots)
-        if join.any():
-            for q in range(LANES):  # a run-time loop: one inlined union, not LANES (compile time)
-                if join[q]:
-                    roots[q] = union(parent, roots[q], k)
-    return count, pot, product, near, roots
+        product *= ti.select(inside, ti.cast(r2, ti.f64) * inv_r2cut, 1.0)
+    return count, pot, product, near
+
+
+@ti.func
+def _pair_labels(begin, end, ids, p, label, other, r2cut, dim: ti.template(), id_sorted: ti.template(),
+                 pos_sorted: ti.template(), parent: ti.template()):
+    """The components (:mod:`tflock.lane_graph`): the candidates [begin, end), in the stripe before the block and
+    settled, fold their set labels into each lane they are near."""
+    for k in range(begin, end):
+        j = id_sorted[k]
+        if j < 0:  # never
+            break
+        r2 = _lane_r2(k, p, dim, pos_sorted)
+        label, other = fold_label(label, other, (r2 < r2cut) & (ids != j), parent[k])
+    return label, other
+
+
+@ti.func
+def _block_mask(p, ids, r2cut, dim: ti.template()):
+    """Per lane, the bit mask of the lanes within R of it, itself included (:func:`tflock.lane_graph.settle_block`):
+    the lanes' own pairs, as the candidate loops test them (every lane of a block is a candidate of its run)."""
+    inmask = ti.Vector([1 << q for q in ti.static(range(LANES))])
+    for k in ti.static(range(LANES)):
+        r2 = ti.Vector([(p[0, k] - p[0, q]) * (p[0, k] - p[0, q]) for q in ti.static(range(LANES))])
+        for a in ti.static(range(1, dim)):
+            r2 += ti.Vector([(p[a, k] - p[a, q]) * (p[a, k] - p[a, q]) for q in ti.static(range(LANES))])
+        inmask |= ti.select((r2 < r2cut) & (ids != ids[k]), 1 << k, 0)
+    return inmask
 
 
 @ti.kernel
-def _pairs_lanes(n: ti.i32, total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, v_cut: float,
-                 dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
-                 id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
-                 valency: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray()):
-    """:func:`_grid_pairs` on the CPU, ``LANES`` agents of a run of cells at a time (as :func:`_step_lanes`), and
-    the pairs pass of the components (:mod:`tflock.components`) in the same candidate loop: ``parent`` over the
-    grid's slots."""
-    for s in range(n):
-        parent[s] = s
+def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(),
+                     layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                     id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
+                     accel: ti.types.ndarray(), valency: ti.types.ndarray(), energy: ti.types.ndarray(),
+                     nearest: ti.types.ndarray()):
+    """The next step's neighbour pass, run for a state whose metrics are taken (as :func:`_step_lanes` takes the
+    agents): each agent's u_i (eq. 3) into ``accel`` (slot order; :func:`_move` then makes the step, bit for bit as
+    :func:`_step_lanes`), and per agent (agent order) its valency |N_i|, half its saturated potential
+    1/2 sum (V - V(R)) and its nearest distance, capped at R."""
     for b in range(total_buckets):
+        inv_r2cut = 1.0 / ti.cast(r2cut, ti.f64)
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
         for block in range((a1 - a0 + LANES - 1) // LANES):
             i0 = a0 + block * LANES
             slots = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
-            p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))]
-                           for a in ti.static(range(dim))])
+            p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+            v = ti.Matrix([[vel_sorted[a, slots[q]] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+            u = p * 0.0
             ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
             count = ti.Vector([0] * LANES)
             pot = ti.Vector([0.0] * LANES)
             logs = ti.Vector([0.0] * LANES, dt=ti.f64)
+            product = ti.Vector([1.0] * LANES, dt=ti.f64)
             near = ti.Vector([r2cut] * LANES)
-            roots = slots
             for r in range(ti.static(3 ** (dim - 1))):
                 begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                product = ti.Vector([1.0] * LANES, dt=ti.f64)
-                count, pot, product, near, roots = _pair_terms(begin, end, slots, ids, p, count, pot, product, near,
-                                                               roots, r2cut, d2, v_cut, dim, id_sorted, pos_sorted,
-                                                               parent)
-                logs += ti.log(product)
+                u = _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim, id_sorted, pos_sorted, vel_sorted)
+                count, pot, product, near = _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut,
+                                                       inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted)
+                if (product < PRODUCT_FLOOR).any():  # its log, before the next span's factors could underflow it
+                    logs += ti.log(product)
+                    product = ti.Vector([1.0] * LANES, dt=ti.f64)
+            logs += ti.log(product)  # one logarithm per agent (a call to libm each): not one per span
             pot += ti.cast(logs + ti.cast(count, ti.f64) * ti.log(ti.cast(r2cut, ti.f64)), float)  # the run's type
             for q in ti.static(range(LANES)):
                 if i0 + q < a1:
+                    for a in ti.static(range(dim)):
+                        accel[a, i0 + q] = u[a, q]
                     valency[ids[q]] = count[q]
                     energy[ids[q]] = 0.5 * pot[q]
                     nearest[ids[q]] = ti.sqrt(near[q])
+
+
+@ti.kernel
+def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float,
+                      dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(),
+                      run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                      parent: ti.types.ndarray(), size: ti.types.ndarray()):
+    """The components of the graph |r_ij| < R in ``parent``, ``LANES`` agents at a time (stripes of layers, a stripe
+    a task, see :mod:`tflock.lane_graph`; :func:`_cross_stripes_strict` and :func:`_count_roots` complete them)."""
+    ti.loop_config(block_dim=1)  # a stripe a task
+    for j in range(n_stripes):
+        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for b in range(b_lo, b_hi):
+            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+            for block in range((a1 - a0 + LANES - 1) // LANES):
+                i0 = a0 + block * LANES
+                i1 = ti.min(i0 + LANES, a1)
+                slots = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
+                p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))]
+                               for a in ti.static(range(dim))])
+                ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
+                label = ti.Vector([NO_LABEL] * LANES)
+                other = ti.Vector([NO_LABEL] * LANES)
+                for r in range(ti.static(3 ** (dim - 1))):  # the candidates in the stripe before the block
+                    begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                    label, other = _pair_labels(ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, r2cut,
+                                                dim, id_sorted, pos_sorted, parent)
+                inmask = _block_mask(p, ids, r2cut, dim)
+                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                    bit = recheck & (-recheck)
+                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                    here = load_vec(pos_sorted, i0 + q, dim)
+                    root = -1
+                    for r in range(ti.static(3 ** (dim - 1))):
+                        begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                        for k in range(ti.max(begin, s_lo), ti.min(end, i0)):
+                            if (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
+                                root = join_candidate(root, k, parent, size)
+                    roots[q] = root
+                    recheck ^= bit
+                settle_block(i0, i1 - i0, roots, inmask, parent, size)
+
+
+@ti.kernel
+def _cross_stripes_strict(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2cut: float, nc: ti.i32,
+                          n_buckets: ti.i32, layout: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+                          mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                          coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
+    """Join the pairs |r_ij| < R whose agents lie in two stripes of :func:`_components_lanes`, in one serial pass:
+    :meth:`tflock.lane_graph.LaneComponents.finish`'s pass with this model's strict test (the agents of each
+    stripe's first layer against the stencil spans one layer back)."""
+    ti.loop_config(serialize=True)
+    for j in range(n_stripes):
+        b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
+            here = load_vec(pos_sorted, s, dim)
+            c = load_cell(coords_sorted, s, dim)
+            for o in range(ti.static(span_count(layout, dim) // 3)):
+                lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+                begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
+                for k in range(begin, end):
+                    if (k < s_lo or k >= s_hi) and (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
+                        join_candidate(local_root(parent, s), k, parent, size)
+
+
+@ti.kernel
+def _count_roots(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
+    """result = (components, agents in the largest)."""
+    count_roots(n, parent, size, result)
+
+
+@ti.kernel
+def _move(n: ti.i32, dt: float, dim: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+          vel_sorted: ti.types.ndarray(), accel: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+          ids: ti.types.ndarray(), draw: ti.template(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
+          drawn: ti.types.ndarray()):
+    """The move of :func:`_step_lanes` from the accelerations :func:`_step_sums_lanes` left (slot order), with
+    the drawn agents' frame rows where `draw`."""
+    for s in range(n):
+        v = load_vec(vel_sorted, s, dim)
+        p = load_vec(pos_sorted, s, dim)
+        v += dt * load_vec(accel, s, dim)
+        p += dt * v
+        for a in ti.static(range(dim)):
+            vel[a, s] = v[a]
+            pos[a, s] = p[a]
+        ids[s] = id_sorted[s]
+        if ti.static(draw):
+            r = drawn_rank(id_sorted[s], bits, word_rank)
+            if r >= 0:
+                for a in ti.static(range(dim)):
+                    drawn[0, r, a] = p[a]
+                    drawn[1, r, a] = v[a]
 
 
 @ti.kernel
@@ -467,6 +619,15 @@ def _drawn_gather(m: ti.i32, dim: ti.template(), slot: ti.types.ndarray(), order
             out[1, r, a] = vel[a, e]
 
 
+class _NextStep:
+    """The accelerations u_i (eq. 3) of the next step, slot order, that the lane-wise metrics pass computed, and
+    ``summed``, the (step, grid build) they are for (None: none). Derived data, which checkpoints leave out."""
+
+    def __init__(self, accel: ti.Ndarray) -> None:
+        self.accel = accel
+        self.summed: tuple[int, int] | None = None
+
+
 class Potential(GridModel):
     """Potential-field flocking of double integrators, fixed or switching topology, 2D or 3D (see the module)."""
 
@@ -492,6 +653,9 @@ class Potential(GridModel):
         self.grid = CellGrid(n, dim, "open", params.box, params.radius, real, bounded=engine.arch == "cpu")
         self.lane_wise = engine.arch == "cpu" and self.switching  # see _step_lanes
         self.graph = NeighbourGraph(self.grid, strict=True)  # N_i: |r_ij| < R
+        # the lane-wise metrics pass: the components it finds, and the next step's accelerations it computes
+        self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise else None
+        self._next_step = _NextStep(ti.ndarray(ftype, (dim, n if self.lane_wise else 1)))
         self._grid_step = -1
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
@@ -557,6 +721,7 @@ class Potential(GridModel):
         super().invalidate()
         self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
         self._components_found: tuple[int, int] | None = None  # (step, components) where the pairs' pass found them
+        self._next_step.summed = None
 
     def state(self) -> dict[str, np.ndarray]:
         ids = self.ids.to_numpy()
@@ -584,6 +749,11 @@ class Potential(GridModel):
             if self.switching:
                 self._ensure_grid()
                 g = grid.geometry  # this build's layout: bounded or hashed
+                if self._next_step.summed == (self.step_index, grid.builds):  # summed by the metrics pass
+                    _move(p.n, p.dt, self.dim, grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
+                          self.pos, self.vel, self.ids, *self._draw_arguments(2, self.dim))
+                    self.step_index += 1
+                    continue
                 _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
                 if self.lane_wise and g.boundary == BOUNDED:
                     _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, self.dim, g.boundary,
@@ -615,14 +785,18 @@ class Potential(GridModel):
         np.fill_diagonal(a, False)
         return a
 
-    def _lambda2_now(self) -> float:
+    def _lambda2_now(self, components: float) -> float:
+        """lambda_2 of the graph Laplacian, recomputed every ``lambda2_every`` steps: 0 exactly for a graph of more
+        than one component (the multiplicity of the eigenvalue 0 is the number of components, which the metrics
+        count exactly), else from NumPy's eigvalsh, O(N^3)."""
         step, every = self.step_index, self.params.lambda2_every
         last = self._lambda2_step
         stale = last < 0 or (self.switching and (step % every == 0 or step < last))
         if stale:  # a fixed graph's lambda_2 never changes
-            a = self.adjacency().astype(np.float64)
-            laplacian = np.diag(a.sum(axis=1)) - a
-            self._lambda2_value = float(np.linalg.eigvalsh(laplacian)[1]) if len(a) > 1 else 0.0
+            self._lambda2_value = 0.0
+            if components == 1.0 and self.params.n > 1:
+                a = self.adjacency().astype(np.float64)
+                self._lambda2_value = float(np.linalg.eigvalsh(np.diag(a.sum(axis=1)) - a)[1])
             self._lambda2_step = step
         return self._lambda2_value
 
@@ -642,20 +816,35 @@ class Potential(GridModel):
         if self.switching:
             self._ensure_grid()
             g = self.grid.geometry
-            if self.lane_wise and g.boundary == BOUNDED:  # the components' pairs pass in the same loop
-                p = self.params
-                d2 = p.desired_distance**2
-                v_cut = d2 / p.radius**2 + math.log(p.radius**2)
-                _pairs_lanes(p.n, g.total_buckets, g.cells_per_side, p.radius**2, d2, v_cut, self.dim, g.boundary,
-                             self.grid.start, self.grid.runs(), self.grid.id_sorted, self.grid.pos_sorted,
-                             self.graph.pairs_parent(p.radius), self.valency, self.energy, self.nearest)
-                self._components_found = (self.step_index, self.graph.joined_components(p.radius)[0])
+            if self.lane_wise and g.boundary == BOUNDED:  # with the next step's sums and the components
+                self._lane_pairs()
             else:
                 self._grid_pairs(self.valency, self.energy)
         else:
             p = self.params
             _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
         self._pairs_step = (self.step_index,)
+
+    def _lane_pairs(self) -> None:
+        """The lane-wise metrics pass (:func:`_step_sums_lanes`): the next step's accelerations, each agent's
+        valency, energy and nearest distance, and the components, counted here."""
+        p, grid, found = self.params, self.grid, self.components
+        g = grid.geometry
+        d2, r2cut = p.desired_distance**2, p.radius**2
+        v_cut = d2 / r2cut + math.log(r2cut)
+        _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
+        _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start,
+                         grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
+                         self.valency, self.energy, self.nearest)
+        stripes = found.stripes()
+        _components_lanes(*stripes, g.cells_per_side, r2cut, self.dim, g.boundary, grid.start, grid.runs(),
+                          grid.id_sorted, grid.pos_sorted, found.parent, found.size)
+        self._next_step.summed = (self.step_index, grid.builds)
+        if stripes[0] > 1:
+            _cross_stripes_strict(*stripes, r2cut, g.cells_per_side, g.n_buckets, g.boundary, self.dim, grid.start,
+                                  grid.mixed, grid.pos_sorted, grid.coords_sorted, found.parent, found.size)
+        _count_roots(p.n, found.parent, found.size, found.result)
+        self._components_found = (self.step_index, int(found.result[0]))
 
     def lyapunov(self) -> Lyapunov:
         """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic
@@ -742,7 +931,7 @@ class Potential(GridModel):
             "connected": float(components == 1.0),
         }
         if n <= LAMBDA2_MAX:
-            out["lambda2"] = self._lambda2_now()
+            out["lambda2"] = self._lambda2_now(components)
         if n <= PER_AGENT_MAX:
             ids = self.ids.to_numpy()
             agent_speed = np.empty(n)
