@@ -359,14 +359,6 @@ class Components:
             return self._by_subcells()
         return self._by_pairs()
 
-    def from_joined_pairs(self) -> tuple[int, int]:
-        """:meth:`compute` after a model's own kernel made the pairs pass into ``parent`` (over the model grid's
-        slots, with :func:`union`), in its neighbour loop."""
-        _pair_sizes(self.model_grid.n, self.parent, self.size, self.result)
-        self.slot_grid = self.model_grid
-        clusters, largest, _ = (int(v) for v in self.result.to_numpy())
-        return clusters, largest
-
     def _by_pairs(self) -> tuple[int, int]:
         grid, g = self.model_grid, self.model_grid.geometry
         _pair_union(grid.n, self.radius**2, grid.box, g.cells_per_side, g.n_buckets, self.strict, g.boundary, g.dim,
