@@ -21,8 +21,20 @@ import math
 
 import taichi as ti
 
-from tflock.neighbors import bucket_of_cell, load_cell, load_vec, same_cell, span_agents
-from tflock.space import OPEN, PERIODIC, displacement
+from tflock.engine import current_engine
+from tflock.neighbors import (
+    LANES,
+    CellGrid,
+    bucket_of_cell,
+    load_cell,
+    load_vec,
+    run_at,
+    run_spans,
+    run_wraps,
+    same_cell,
+    span_agents,
+)
+from tflock.space import OPEN, PERIODIC, REFLECTING, displacement
 
 #: cell side / the distance within which a uniform swarm of the mean density holds k agents on average (see
 #: :func:`cell_side`); set by timing the search at N = 1e6 and k = 6 and 7 (docs/performance.md)
@@ -126,6 +138,89 @@ def _row_span(c, r, row, seg, nc, boundary: ti.template(), dim: ti.template()):
     return lo, hi
 
 
+@ti.func
+def _margin(p, c, cell, boundary: ti.template(), dim: ti.template()):
+    """The least distance from position p to a face of its cell c, in cells (at most 0.5)."""
+    margin = 0.5
+    for a in ti.static(range(dim)):
+        f = p[a] / cell - c[a]
+        if ti.static(boundary == OPEN):
+            f = p[a] / cell - ti.floor(p[a] / cell)
+        margin = ti.min(margin, ti.min(f, 1.0 - f))
+    return ti.max(margin, 0.0)
+
+
+@ti.func
+def _last_ring(c, nc, boundary: ti.template(), dim: ti.template()):
+    """The last ring around cell c with cells in it (box layouts): every cell of the replica is visited by then."""
+    last = 0
+    if ti.static(boundary == PERIODIC):
+        last = nc // 2
+    elif ti.static(boundary != OPEN):
+        for a in ti.static(range(dim)):
+            last = ti.max(last, ti.max(c[a], nc - 1 - c[a]))
+    return last
+
+
+@ti.func
+def _search(s, per_replica, box, cell, nc, n_buckets, k: ti.template(), boundary: ti.template(), dim: ti.template(),
+            start: ti.template(), mixed: ti.template(), pos_sorted: ti.template(), coords_sorted: ti.template(),
+            id_sorted: ti.template(), nbr: ti.template(), rings: ti.template()):
+    """The k nearest of the agent at slot s by growing rings of cells (the module's search): ``nbr[:, s]`` and
+    ``rings[s]``."""
+    p = load_vec(pos_sorted, s, dim)
+    c = load_cell(coords_sorted, s, dim)
+    margin = _margin(p, c, cell, boundary, dim)
+    last = _last_ring(c, nc, boundary, dim)
+    best_d = ti.Vector([math.inf] * k)
+    best_id = ti.Vector([NO_AGENT] * k, dt=ti.i32)
+    best_slot = ti.Vector([-1] * k, dt=ti.i32)
+    seen = 0
+    r = 0
+    done = False
+    while not done:
+        if ti.static(boundary == OPEN):  # each cell of the ring is hashed on its own
+            side = 2 * r + 1
+            for q in range(side**dim):
+                cell_c = c
+                rim = False
+                for a in ti.static(range(dim)):
+                    o = (q // side**a) % side - r
+                    cell_c[a] = c[a] + o
+                    if ti.abs(o) == r:
+                        rim = True
+                if rim:
+                    lo = bucket_of_cell(cell_c, nc, n_buckets, boundary, dim)
+                    begin, end, check = span_agents(lo, lo + 1, cell_c, start, mixed, coords_sorted, boundary, dim)
+                    for kk in range(begin, end):
+                        if kk != s and (check == 0 or same_cell(coords_sorted, kk, cell_c, boundary, dim) == 1):
+                            d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
+                            seen += 1
+                            best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d, best_id,
+                                                                best_slot, k)
+        else:
+            for q in range(2 * (2 * r + 1) ** (dim - 1)):
+                lo, hi = _row_span(c, r, q // 2, q % 2, nc, boundary, dim)
+                for kk in range(start[lo], start[hi]):
+                    if kk != s:
+                        d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
+                        seen += 1
+                        best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d, best_id,
+                                                            best_slot, k)
+        bound = (r + margin) * cell
+        if seen >= k and best_d[k - 1] < bound * bound * (1.0 - CERTAIN_MARGIN):
+            done = True
+        if ti.static(boundary == OPEN):
+            if seen >= per_replica - 1:
+                done = True
+        elif r >= last:
+            done = True
+        r += 1
+    for e in ti.static(range(k)):
+        nbr[e, s] = best_slot[e]
+    rings[s] = r
+
+
 @ti.kernel
 def nearest(n: ti.i32, per_replica: ti.i32, box: float, cell: float, nc: ti.i32, n_buckets: ti.i32,
             k: ti.template(), boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
@@ -133,68 +228,118 @@ def nearest(n: ti.i32, per_replica: ti.i32, box: float, cell: float, nc: ti.i32,
             id_sorted: ti.types.ndarray(), nbr: ti.types.ndarray(), rings: ti.types.ndarray()):
     """``nbr[e, s]``: the grid slot of the e-th nearest agent to the agent at slot s (e = 0 the nearest), for
     every slot of a grid whose cells have side `cell` (``nc`` per side in a box); ``rings[s]``: the rings its search
-    visited (for the benchmarks and tests)."""
+    visited (for the benchmarks and tests). One agent at a time: any layout and arch."""
     for s in range(n):
-        p = load_vec(pos_sorted, s, dim)
-        c = load_cell(coords_sorted, s, dim)
-        margin = 0.5  # the agent's least distance to a face of its cell, in cells
-        for a in ti.static(range(dim)):
-            f = p[a] / cell - c[a]
-            if ti.static(boundary == OPEN):
-                f = p[a] / cell - ti.floor(p[a] / cell)
-            margin = ti.min(margin, ti.min(f, 1.0 - f))
-        margin = ti.max(margin, 0.0)
-        last = 0  # the last ring with cells in it: every cell of the replica is visited by then (box layouts)
-        if ti.static(boundary == PERIODIC):
-            last = nc // 2
-        elif ti.static(boundary != OPEN):
-            for a in ti.static(range(dim)):
-                last = ti.max(last, ti.max(c[a], nc - 1 - c[a]))
-        best_d = ti.Vector([math.inf] * k)
-        best_id = ti.Vector([NO_AGENT] * k, dt=ti.i32)
-        best_slot = ti.Vector([-1] * k, dt=ti.i32)
-        seen = 0
-        r = 0
-        done = False
-        while not done:
-            if ti.static(boundary == OPEN):  # each cell of the ring is hashed on its own
-                side = 2 * r + 1
-                for q in range(side**dim):
-                    cell_c = c
-                    rim = False
-                    for a in ti.static(range(dim)):
-                        o = (q // side**a) % side - r
-                        cell_c[a] = c[a] + o
-                        if ti.abs(o) == r:
-                            rim = True
-                    if rim:
-                        lo = bucket_of_cell(cell_c, nc, n_buckets, boundary, dim)
-                        begin, end, check = span_agents(lo, lo + 1, cell_c, start, mixed, coords_sorted, boundary,
-                                                        dim)
-                        for kk in range(begin, end):
-                            if kk != s and (check == 0 or same_cell(coords_sorted, kk, cell_c, boundary, dim) == 1):
-                                d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
-                                seen += 1
-                                best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d,
-                                                                    best_id, best_slot, k)
-            else:
-                for q in range(2 * (2 * r + 1) ** (dim - 1)):
-                    lo, hi = _row_span(c, r, q // 2, q % 2, nc, boundary, dim)
-                    for kk in range(start[lo], start[hi]):
-                        if kk != s:
-                            d = displacement(p, load_vec(pos_sorted, kk, dim), box, boundary)
-                            seen += 1
-                            best_d, best_id, best_slot = _offer(d.norm_sqr(), id_sorted[kk], kk, best_d, best_id,
-                                                                best_slot, k)
-            bound = (r + margin) * cell
-            if seen >= k and best_d[k - 1] < bound * bound * (1.0 - CERTAIN_MARGIN):
-                done = True
-            if ti.static(boundary == OPEN):
-                if seen >= per_replica - 1:
-                    done = True
-            elif r >= last:
-                done = True
-            r += 1
-        for e in ti.static(range(k)):
-            nbr[e, s] = best_slot[e]
-        rings[s] = r
+        _search(s, per_replica, box, cell, nc, n_buckets, k, boundary, dim, start, mixed, pos_sorted, coords_sorted,
+                id_sorted, nbr, rings)
+
+
+@ti.func
+def _offer_lanes(begin, end, p, me, best_d, best_id, best_slot, box, pos_sorted: ti.template(),
+                 id_sorted: ti.template(), k: ti.template(), minimum_image: ti.template(), dim: ti.template()):
+    """Offer the candidates at slots [begin, end) to each lane's k-best list (lane q: the agent at slot me[q] and
+    position p[:, q]), a lane's own slot excepted; branch-free, one sorted list per lane."""
+    metric = ti.static(PERIODIC if minimum_image else REFLECTING)  # REFLECTING: the plain difference
+    for kk in range(begin, end):
+        j = id_sorted[kk]
+        for q in ti.static(range(LANES)):
+            d = displacement(p[0, q], pos_sorted[0, kk], box, metric)
+            d2 = d * d
+            for a in ti.static(range(1, dim)):
+                d = displacement(p[a, q], pos_sorted[a, kk], box, metric)
+                d2 = d2 + d * d
+            own = me[q] == kk
+            cd = ti.select(own, math.inf, d2)
+            cid = ti.select(own, NO_AGENT, j)
+            # entry e takes the candidate where it comes before entry e but not before entry e - 1, entry e - 1
+            # where it comes before both: every new entry reads the old list only (no chain through the list)
+            lt = [_before(cd, cid, best_d[e, q], best_id[e, q]) for e in ti.static(range(k))]
+            for e in ti.static(range(k - 1, -1, -1)):
+                if ti.static(e == 0):
+                    best_d[e, q] = ti.select(lt[e], cd, best_d[e, q])
+                    best_id[e, q] = ti.select(lt[e], cid, best_id[e, q])
+                    best_slot[e, q] = ti.select(lt[e], kk, best_slot[e, q])
+                else:
+                    best_d[e, q] = ti.select(lt[e], ti.select(lt[e - 1], best_d[e - 1, q], cd), best_d[e, q])
+                    best_id[e, q] = ti.select(lt[e], ti.select(lt[e - 1], best_id[e - 1, q], cid), best_id[e, q])
+                    best_slot[e, q] = ti.select(lt[e], ti.select(lt[e - 1], best_slot[e - 1, q], kk),
+                                                best_slot[e, q])
+    return best_d, best_id, best_slot
+
+
+@ti.kernel
+def _nearest_lanes(total_buckets: ti.i32, box: float, cell: float, nc: ti.i32, k: ti.template(),
+                   boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                   pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                   nbr: ti.types.ndarray(), rings: ti.types.ndarray()):
+    """:func:`nearest` for a box grid on the CPU, ``LANES`` agents at a time: the agents of a run of cells
+    (:meth:`~tflock.neighbors.CellGrid.runs`) share the run's 3^d stencil of cells, which holds every agent's
+    rings 0 and 1, and each lane keeps its own k-best list. A lane whose k-th nearest is then certain (within the
+    bound ring 1 gives) has its k nearest; the others (a few per cent in a uniform swarm) get ``rings[s] = 0``, and
+    :func:`_redo` searches them again by :func:`nearest`'s rings from scratch. The lists, the bound and the order
+    are the scalar search's, so the neighbours and ``rings`` are the same as :func:`nearest`'s."""
+    for b in range(total_buckets):
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        wraps = run_wraps(row, x0, x1, nc, boundary)
+        for block in range((a1 - a0 + LANES - 1) // LANES):
+            i0 = a0 + block * LANES
+            p = ti.Matrix([[pos_sorted[a, ti.min(i0 + q, a1 - 1)] for q in ti.static(range(LANES))]
+                           for a in ti.static(range(dim))])
+            me = ti.Vector([ti.min(i0 + q, a1 - 1) for q in ti.static(range(LANES))], dt=ti.i32)
+            best_d = ti.Matrix([[math.inf] * LANES for _ in ti.static(range(k))])
+            best_id = ti.Matrix([[NO_AGENT] * LANES for _ in ti.static(range(k))], dt=ti.i32)
+            best_slot = ti.Matrix([[-1] * LANES for _ in ti.static(range(k))], dt=ti.i32)
+            for r in range(ti.static(3 ** (dim - 1))):
+                b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, dim)
+                for h in range(2):
+                    begin = ti.select(h == 0, b0, b1)
+                    end = ti.select(h == 0, e0, e1)
+                    if wraps:
+                        best_d, best_id, best_slot = _offer_lanes(begin, end, p, me, best_d, best_id, best_slot, box,
+                                                                  pos_sorted, id_sorted, k, True, dim)
+                    else:
+                        best_d, best_id, best_slot = _offer_lanes(begin, end, p, me, best_d, best_id, best_slot, box,
+                                                                  pos_sorted, id_sorted, k, False, dim)
+            for q in ti.static(range(LANES)):
+                s = i0 + q
+                if s < a1:
+                    c = load_cell(coords_sorted, s, dim)
+                    margin = _margin(load_vec(pos_sorted, s, dim), c, cell, boundary, dim)
+                    last = _last_ring(c, nc, boundary, dim)
+                    kth = best_d[k - 1, q]
+                    bound = (0 + margin) * cell
+                    first = last == 0 or kth < bound * bound * (1.0 - CERTAIN_MARGIN)  # ring 0 would do
+                    bound = (1 + margin) * cell
+                    rings[s] = 0  # not certain: searched again by _redo
+                    if last <= 1 or kth < bound * bound * (1.0 - CERTAIN_MARGIN):
+                        for e in ti.static(range(k)):
+                            nbr[e, s] = best_slot[e, q]
+                        rings[s] = ti.select(first, 1, 2)
+
+
+@ti.kernel
+def _redo(n: ti.i32, per_replica: ti.i32, box: float, cell: float, nc: ti.i32, n_buckets: ti.i32,
+          k: ti.template(), boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+          mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+          id_sorted: ti.types.ndarray(), nbr: ti.types.ndarray(), rings: ti.types.ndarray()):
+    """:func:`nearest` for the slots :func:`_nearest_lanes` left uncertain (``rings[s] == 0``)."""
+    for s in range(n):
+        if rings[s] == 0:
+            _search(s, per_replica, box, cell, nc, n_buckets, k, boundary, dim, start, mixed, pos_sorted,
+                    coords_sorted, id_sorted, nbr, rings)
+
+
+def find_nearest(grid: CellGrid, k: int, box: float, nbr: ti.Ndarray, rings: ti.Ndarray) -> None:
+    """``nbr[e, s]``, ``rings[s]`` of :func:`nearest` for every slot of a built `grid` whose cells have the side
+    :func:`cell_side` gives: lane-wise (:func:`_nearest_lanes`) for a 2D box grid on the CPU, else one agent at a
+    time (:func:`nearest`). Both give the same neighbours in the same order, and the same rings."""
+    g = grid.geometry
+    engine = current_engine()
+    if g.boundary in (PERIODIC, REFLECTING) and g.dim == 2 and engine is not None and engine.arch == "cpu":
+        _nearest_lanes(g.total_buckets, box, g.cell_size, g.cells_per_side, k, g.boundary, g.dim, grid.start,
+                       grid.runs(), grid.pos_sorted, grid.coords_sorted, grid.id_sorted, nbr, rings)
+        _redo(grid.n, g.agents_per_replica, box, g.cell_size, g.cells_per_side, g.n_buckets, k, g.boundary, g.dim,
+              grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, nbr, rings)
+    else:
+        nearest(grid.n, g.agents_per_replica, box, g.cell_size, g.cells_per_side, g.n_buckets, k, g.boundary, g.dim,
+                grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, nbr, rings)
