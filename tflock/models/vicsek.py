@@ -93,7 +93,7 @@ from tflock.space import (
     wrap_two_pi,
 )
 from tflock.taichi_host import host_view
-from tflock.topological import cell_side, find_nearest
+from tflock.topological import cell_side, find_nearest, lane_wise
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
 #: arithmetic differently at each vector width (8 and 16 gave headings 1 ulp apart on an AVX2 host), and the
@@ -696,7 +696,8 @@ class Vicsek(GridModel):
         reach = params.radius + (bound - 1) * params.speed if self.asynchronous else params.radius
         self.topological = params.neighbours == "topological"
         if self.topological:  # cells sized for the k nearest, at least R for the R-graph metrics
-            reach = max(reach, cell_side(params.n, params.k, 2, params.box))
+            reach = max(reach, cell_side(params.n, params.k, 2, params.box,
+                                         lanes=lane_wise(boundary_code(params.boundary), 2)))
         self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real, replicas)
         # the lane-wise synchronous step (CPU, box boundaries) keeps each agent's neighbour sums between its kernels;
         # the topological step too (any arch and boundary), with each agent's k nearest (grid slots) and the rings
