@@ -15,6 +15,12 @@ boundary: minimum image in a periodic box.
 
 The cell side is chosen from the mean density (:func:`cell_side`): in a uniform swarm the k-th neighbour then lies
 within the first ring for most agents, and a search visits about ``3^d`` cells of a few agents each.
+
+:func:`find_nearest` is the entry point. On the CPU in a 2D periodic or reflecting box (:func:`lane_wise`) it takes
+the agents ``WIDTH`` at a time (:func:`_nearest_lanes`): a block of a run of cells shares the run's stencil, which
+holds each agent's rings 0 and 1, every lane keeps its own k-best list, and the lanes whose k-th nearest is not
+certain after ring 1 are searched again by the rings above (:func:`_redo`). The neighbours, their order and the
+rings are those of :func:`nearest`, which searches open space, 3D and GPU arches.
 """
 
 import math
