@@ -19,7 +19,8 @@ def test_oracle_tests_pass_at_f32():
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                              str(tests / "test_oracle.py"), str(tests / "test_rng.py"),
                              str(tests / "test_formation.py"), str(tests / "test_potential.py"),
-                             str(tests / "test_adaptive.py"), str(tests / "test_ensemble.py")],
+                             str(tests / "test_adaptive.py"), str(tests / "test_ensemble.py"),
+                             str(tests / "test_topological_lanes.py")],
                             env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
     assert " passed" in result.stdout

@@ -10,13 +10,15 @@ from conftest import PRECISION
 
 from tflock import reference as ref
 from tflock.neighbors import CellGrid
-from tflock.topological import cell_side, nearest
+from tflock.topological import cell_side, find_nearest, nearest
 
 BOUNDARIES = ["periodic", "reflecting", "open"]
 
 
-def kernel_neighbours(engine, x: np.ndarray, k: int, boundary: str, box: float, replicas: int = 1):
-    """(agent ids of the k nearest, nearest first, in agent order: shape (n, k); rings searched per agent)."""
+def kernel_neighbours(engine, x: np.ndarray, k: int, boundary: str, box: float, replicas: int = 1,
+                      lanes: bool = False):
+    """(agent ids of the k nearest, nearest first, in agent order: shape (n, k); rings searched per agent), by
+    :func:`nearest` or (`lanes`) :func:`find_nearest`."""
     n, dim = x.shape
     real = engine.real
     grid = CellGrid(n, dim, boundary, box, cell_side(n // replicas, k, dim, box), real, replicas)
@@ -28,8 +30,11 @@ def kernel_neighbours(engine, x: np.ndarray, k: int, boundary: str, box: float, 
     g = grid.geometry
     nbr = ti.ndarray(ti.i32, (k, n))
     rings = ti.ndarray(ti.i32, n)
-    nearest(n, n // replicas, box, g.cell_size, g.cells_per_side, g.n_buckets, k, g.boundary, dim, grid.start,
-            grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, nbr, rings)
+    if lanes:
+        find_nearest(grid, k, box, nbr, rings)
+    else:
+        nearest(n, n // replicas, box, g.cell_size, g.cells_per_side, g.n_buckets, k, g.boundary, dim, grid.start,
+                grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, nbr, rings)
     id_sorted = grid.id_sorted.to_numpy()
     out = np.empty((n, k), dtype=np.int64)
     out[id_sorted] = id_sorted[nbr.to_numpy()].T

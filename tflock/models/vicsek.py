@@ -93,7 +93,7 @@ from tflock.space import (
     wrap_two_pi,
 )
 from tflock.taichi_host import host_view
-from tflock.topological import cell_side, nearest
+from tflock.topological import cell_side, find_nearest, lane_wise
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
 #: arithmetic differently at each vector width (8 and 16 gave headings 1 ulp apart on an AVX2 host), and the
@@ -696,7 +696,8 @@ class Vicsek(GridModel):
         reach = params.radius + (bound - 1) * params.speed if self.asynchronous else params.radius
         self.topological = params.neighbours == "topological"
         if self.topological:  # cells sized for the k nearest, at least R for the R-graph metrics
-            reach = max(reach, cell_side(params.n, params.k, 2, params.box))
+            reach = max(reach, cell_side(params.n, params.k, 2, params.box,
+                                         lanes=lane_wise(boundary_code(params.boundary), 2)))
         self.grid = CellGrid(n, 2, params.boundary, params.box, reach, real, replicas)
         # the lane-wise synchronous step (CPU, box boundaries) keeps each agent's neighbour sums between its kernels;
         # the topological step too (any arch and boundary), with each agent's k nearest (grid slots) and the rings
@@ -799,13 +800,12 @@ class Vicsek(GridModel):
                 *self._draw_arguments(3, 2))
 
     def _topological_step(self, inv_g: float) -> None:
-        """The synchronous step with the k nearest agents as neighbours: :func:`tflock.topological.nearest`, their
+        """The synchronous step with the k nearest agents as neighbours: :func:`tflock.topological.find_nearest`, their
         sums, then the lane-wise update."""
         p, grid = self.params, self.grid
         g, rule = grid.geometry, RULES[p.rule]
         _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
-        nearest(self.n_total, p.n, p.box, g.cell_size, g.cells_per_side, g.n_buckets, p.k, g.boundary, 2, grid.start,
-                grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.nbr, self.rings)
+        find_nearest(grid, p.k, p.box, self.nbr, self.rings)
         _list_sums(self.n_total, p.k, rule, self.nbr, self.payload, self.sums)
         _update(self.n_total, self.step_index, self.seed, p.n, p.speed, p.noise, p.box, math.radians(p.max_turn_deg),
                 inv_g, rule, g.boundary, p.leader.enabled, p.noise_type == "vectorial",
