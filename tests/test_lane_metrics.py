@@ -76,8 +76,8 @@ def test_clusters_joined_across_the_periodic_wrap(engine):
 @pytest.mark.parametrize("teeth", [2, 3])
 def test_an_agent_joining_separate_sets(engine, teeth):
     """Lines of agents whose tips lie 0.95 R around one agent, further than R from each other: each line is a set
-    of its own until that agent, whose near candidates (in its stripe, before it) carry two labels (folded apart in
-    a second pass) or three (its candidates re-read); it joins them into one cluster. Lone agents 1.4 R apart fill
+    of its own until that agent, whose near candidates (in its stripe, before it) carry two labels (joined as its
+    block settles) or three (its candidates re-read); it joins them into one cluster. Lone agents 1.4 R apart fill
     the rest of the box, enough agents for cells of side R."""
     points = [(10.0, 10.0)]
     for a in np.radians([200.0, 340.0, 270.0][:teeth]):  # each line runs outward from its tip, 0.5 apart

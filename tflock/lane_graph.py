@@ -7,8 +7,10 @@ neighbours. :class:`LaneComponents` lets that same pass find the connected compo
 The grid's layers (the last cell coordinate, and the replica) are cut into stripes of consecutive layers; each
 stripe is one task, its runs of cells taken in slot order by one thread. Every agent of a stripe is settled when its
 block of lanes closes: it joins the sets of its neighbours at smaller slots in the same stripe (all settled before
-it), so in the vector loop a block only keeps, per lane, the set label (``parent``) its near candidates before it in the
-stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block. After the loop the
+it), so in the vector loop a block only keeps, per lane, the set label (:func:`candidate_label`) its near candidates
+before it in the stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block.
+A span of candidates that carries one label (nearly every span inside a flock) folds it once, into the lanes that
+found one of them near (:func:`span_labels`), instead of once per candidate. After the loop the
 block's lanes find their roots: from the shared label (almost always) with one scalar step, or when MIXED by
 re-reading the lane's candidates and joining each one's set (:func:`block_roots`, :func:`join_candidate`); then
 the lanes within R of each other join those roots into one set (:func:`settle_block`). This phase writes only
@@ -30,7 +32,7 @@ from tflock.space import displacement
 
 #: no candidate seen: the initial smallest label of a lane
 NO_LABEL = 2**31 - 1
-#: a lane's near candidates carried three set labels or more (see fold_label)
+#: a lane's near candidates carried two set labels (see fold_label)
 MIXED = -1
 #: stripes per CPU thread: enough tasks to even out dense and empty parts of the grid
 STRIPES_PER_THREAD = 8
@@ -76,18 +78,10 @@ def candidate_label(parent: ti.template(), k):
 
 
 @ti.func
-def fold_range(lo, hi, near, label):
-    """Per lane, the smallest (`lo`, NO_LABEL: none yet) and largest (`hi`, -1: none) set label of its near
-    candidates so far, with one more candidate's `label` folded into the lanes it is `near` (vector loop, two
-    operations a candidate). Where they end equal, every near candidate carried that one label."""
-    return ti.select(near & (label < lo), label, lo), ti.select(near & (label > hi), label, hi)
-
-
-@ti.func
 def span_labels(parent: ti.template(), begin, end):
     """The smallest and largest :func:`candidate_label` of the candidates [begin, end) (scalar; NO_LABEL and -1
-    when empty). Where they are equal, the whole span carries one label: a lane's range then takes it once, if any
-    of the span's candidates is near, instead of once per candidate (:func:`fold_range`)."""
+    when empty). Where they are equal the whole span carries one label: it is folded once, into the lanes that
+    found a candidate of the span near, instead of once per candidate (:func:`fold_label`)."""
     lo = NO_LABEL
     hi = -1
     for k in range(begin, end):
@@ -95,22 +89,6 @@ def span_labels(parent: ti.template(), begin, end):
         lo = ti.min(lo, label)
         hi = ti.max(hi, label)
     return lo, hi
-
-
-@ti.func
-def range_roots(width, lo, hi, parent: ti.template()):
-    """Per lane of a block of `width` lanes, the root of the one label its near candidates carried
-    (:func:`fold_range`; -1: no candidate near), and the bit mask of the lanes whose candidates carried several:
-    the caller folds those lanes' labels again with :func:`fold_label` and settles them with :func:`label_roots`."""
-    roots = ti.Vector([-1] * LANES)
-    several = 0
-    for q in ti.static(range(LANES)):
-        if q < width:
-            if lo[q] == hi[q]:
-                roots[q] = local_root(parent, lo[q])
-            elif lo[q] != NO_LABEL:
-                several |= 1 << q
-    return roots, several
 
 
 @ti.func
@@ -125,22 +103,24 @@ def fold_label(label, other, near, candidate):
 
 
 @ti.func
-def label_roots(lanes, label, other, roots, parent: ti.template(), size: ti.template()):
-    """For the lanes of bit mask `lanes`, whose near candidates carried two labels or more: in `roots`, the root of
-    their sets from :func:`fold_label`'s labels (the two sets joined), and the bit mask of the lanes whose
-    candidates carried three: the caller re-reads their candidates, joins each one's set with
-    :func:`join_candidate` and puts the root in their place."""
+def block_roots(width, label, other, parent: ti.template(), size: ti.template()):
+    """Per lane of a block of `width` lanes, the root of the set of its near candidates before the block in the
+    stripe (-1: none near), from :func:`fold_label`'s labels, and the bit mask of the lanes whose candidates carried
+    two labels: the caller re-reads their candidates, joins each one's set with :func:`join_candidate` and puts the
+    root in their place."""
+    roots = ti.Vector([-1] * LANES)
     recheck = 0
     for q in ti.static(range(LANES)):
-        if (lanes >> q) & 1:
-            r = local_root(parent, label[q])
-            if other[q] == MIXED:
-                recheck |= 1 << q
-            elif other[q] != NO_LABEL:
-                r2 = local_root(parent, other[q])
-                if r2 != r:
-                    r = _join(parent, size, r, r2)
-            roots[q] = r
+        if q < width:
+            if label[q] != NO_LABEL:
+                r = local_root(parent, label[q])
+                if other[q] == MIXED:
+                    recheck |= 1 << q
+                elif other[q] != NO_LABEL:
+                    r2 = local_root(parent, other[q])
+                    if r2 != r:
+                        r = _join(parent, size, r, r2)
+                roots[q] = r
     return roots, recheck
 
 

@@ -46,13 +46,11 @@ from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
 from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
+    block_roots,
     candidate_label,
     degree_stats,
     fold_label,
-    fold_range,
     join_candidate,
-    label_roots,
-    range_roots,
     settle_block,
     span_labels,
     stripe_range,
@@ -353,13 +351,13 @@ PLAIN, BEFORE, BLOCK = 0, 1, 2  # candidates of a stripe's block (see _neighbour
 
 
 @ti.func
-def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box,
+def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
                       pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
                       minimum_image: ti.template(), part: ti.template()):
     """:func:`_accumulate` with the count for every rule, and for the components (tflock.lane_graph): candidates
-    before the block in the stripe (`part` BEFORE) fold their set label into each near lane's range of labels
-    [`lo`, `hi`] (tflock.lane_graph.fold_range), the block's own agents (BLOCK) set their bit in `inmask`. The sums
-    are added as :func:`_accumulate` adds them, in the same order."""
+    before the block in the stripe (`part` BEFORE) fold their set label into each near lane's `label`
+    (tflock.lane_graph.fold_label), the block's own agents (BLOCK) set their bit in `inmask`. The sums are added as
+    :func:`_accumulate` adds them, in the same order."""
     metric = ti.static(PERIODIC if minimum_image else REFLECTING)
     for k in range(begin, end):
         xk = pos_sorted[0, k]
@@ -377,60 +375,39 @@ def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, lo, hi, inmas
             acc_a += ti.select(near, payload[2, k], 0.0)
         count += ti.select(near, 1.0, 0.0)
         if ti.static(part == BEFORE):
-            lo, hi = fold_range(lo, hi, near, candidate_label(parent, k))
+            label, other = fold_label(label, other, near, candidate_label(parent, k))
         elif ti.static(part == BLOCK):
             inmask |= ti.select(near, 1 << (k - i0), 0)
-    return acc_a, acc_b, count, lo, hi, inmask
+    return acc_a, acc_b, count, label, other, inmask
 
 
 @ti.func
-def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, lo, hi, inmask, r2, box,
+def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2, box,
                    pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
                    minimum_image: ti.template()):
     """The span [begin, end) in slot order, cut where its candidates stop being in an earlier stripe, before the
     block, in the block [i0, i1) and after it. The candidates before the block fold their labels one by one only
     where they carry several (tflock.lane_graph.span_labels)."""
-    acc_a, acc_b, count, lo, hi, inmask = _accumulate_graph(
-        begin, ti.min(end, s_lo), px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box, pos_sorted,
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        begin, ti.min(end, s_lo), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted,
         payload, parent, rule, minimum_image, PLAIN)
     before, after = ti.max(begin, s_lo), ti.min(end, i0)
     first, last = span_labels(parent, before, after)
-    if first == last:  # one label: folded once, into the lanes that found a candidate near
+    if first == last:  # one label: folded once, into the lanes whose count the span raised
         counted = count
-        acc_a, acc_b, count, lo, hi, inmask = _accumulate_graph(
-            before, after, px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box, pos_sorted, payload, parent,
-            rule, minimum_image, PLAIN)
-        lo, hi = fold_range(lo, hi, count > counted, first)
+        acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+            before, after, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted, payload,
+            parent, rule, minimum_image, PLAIN)
+        label, other = fold_label(label, other, count > counted, first)
     else:
-        acc_a, acc_b, count, lo, hi, inmask = _accumulate_graph(
-            before, after, px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box, pos_sorted, payload, parent,
-            rule, minimum_image, BEFORE)
-    acc_a, acc_b, count, lo, hi, inmask = _accumulate_graph(
-        ti.max(begin, i0), ti.min(end, i1), px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box,
+        acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+            before, after, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted, payload,
+            parent, rule, minimum_image, BEFORE)
+    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+        ti.max(begin, i0), ti.min(end, i1), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
         pos_sorted, payload, parent, rule, minimum_image, BLOCK)
-    return _accumulate_graph(ti.max(begin, i1), end, px, py, th, acc_a, acc_b, count, lo, hi, inmask, i0, r2, box,
+    return _accumulate_graph(ti.max(begin, i1), end, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
                              pos_sorted, payload, parent, rule, minimum_image, PLAIN)
-
-
-@ti.func
-def _refold(row, x0, x1, nc, s_lo, i0, px, py, r2, box, wraps, boundary: ti.template(), start: ti.template(),
-            pos_sorted: ti.template(), parent: ti.template()):
-    """The set labels of each lane's near candidates before the block in the stripe, two at most
-    (tflock.lane_graph.fold_label), for the lanes whose candidates carried several (a second vector pass over the
-    block's candidates before it)."""
-    label = ti.Vector([NO_LABEL] * LANES)
-    other = ti.Vector([NO_LABEL] * LANES)
-    for r in range(3):
-        b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
-        for h in range(2):
-            for k in range(ti.max(s_lo, ti.select(h == 0, b0, b1)), ti.min(i0, ti.select(h == 0, e0, e1))):
-                dx = displacement(px, pos_sorted[0, k], box, REFLECTING)  # the plain difference, as in the first pass
-                dy = displacement(py, pos_sorted[1, k], box, REFLECTING)
-                if wraps:
-                    dx = displacement(px, pos_sorted[0, k], box, PERIODIC)
-                    dy = displacement(py, pos_sorted[1, k], box, PERIODIC)
-                label, other = fold_label(label, other, dx * dx + dy * dy <= r2, candidate_label(parent, k))
-    return label, other
 
 
 @ti.kernel
@@ -457,8 +434,8 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                 acc_a = ti.Vector([0.0] * LANES)
                 acc_b = ti.Vector([0.0] * LANES)
                 count = ti.Vector([0.0] * LANES)
-                lo = ti.Vector([NO_LABEL] * LANES)
-                hi = ti.Vector([-1] * LANES)
+                label = ti.Vector([NO_LABEL] * LANES)
+                other = ti.Vector([NO_LABEL] * LANES)
                 inmask = ti.Vector([0] * LANES)
                 for r in range(3):
                     b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
@@ -466,25 +443,20 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                         begin = ti.select(h == 0, b0, b1)
                         end = ti.select(h == 0, e0, e1)
                         if wraps:
-                            acc_a, acc_b, count, lo, hi, inmask = _stencil_graph(
-                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, lo, hi, inmask, r2,
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
                                 box, pos_sorted, payload, parent, rule, True)
                         else:
-                            acc_a, acc_b, count, lo, hi, inmask = _stencil_graph(
-                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, lo, hi, inmask, r2,
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
                                 box, pos_sorted, payload, parent, rule, False)
                 for k in ti.static(range(LANES)):
                     if i0 + k < a1:
                         sums[0, i0 + k] = acc_a[k]
                         sums[1, i0 + k] = acc_b[k]
                         sums[2, i0 + k] = count[k]
-                roots, several = range_roots(i1 - i0, lo, hi, parent)
-                recheck = 0
-                if several != 0:  # lanes whose near candidates carried several labels: fold them apart
-                    label, other = _refold(row, x0, x1, nc, s_lo, i0, px, py, r2, box, wraps, boundary, start,
-                                           pos_sorted, parent)
-                    roots, recheck = label_roots(several, label, other, roots, parent, size)
-                while recheck != 0:  # lanes near candidates of three labels: join each near candidate's set
+                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
                     bit = recheck & (-recheck)
                     q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
                     p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
