@@ -73,6 +73,27 @@ def test_clusters_joined_across_the_periodic_wrap(engine):
     assert_graph_metrics(got, expected_graph(model))
 
 
+@pytest.mark.parametrize("teeth", [2, 3])
+def test_an_agent_joining_separate_sets(engine, teeth):
+    """Lines of agents whose tips lie 0.95 R around one agent, further than R from each other: each line is a set
+    of its own until that agent, whose near candidates (in its stripe, before it) carry two labels (joined as its
+    block settles) or three (its candidates re-read); it joins them into one cluster. Lone agents 1.4 R apart fill
+    the rest of the box, enough agents for cells of side R."""
+    points = [(10.0, 10.0)]
+    for a in np.radians([200.0, 340.0, 270.0][:teeth]):  # each line runs outward from its tip, 0.5 apart
+        points += [(10.0 + (0.95 + 0.5 * j) * math.cos(a), 10.0 + (0.95 + 0.5 * j) * math.sin(a)) for j in range(3)]
+    lone = [(0.5 + 1.4 * i, y + 1.4 * j) for i in range(14) for j in range(5) for y in (0.5, 12.5)]
+    x = np.array(points + lone)
+    cfg = config(len(x), 20.0)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    model.set_state({"x": x, "theta": np.zeros(len(x))}, 0)
+    assert model.grid.geometry.cells_per_side == 20
+    got = model.metrics()
+    assert got["clusters"] == 1 + len(lone)
+    assert got["largest_cluster"] == len(points) / len(x)
+    assert_graph_metrics(got, expected_graph(model))
+
+
 @pytest.mark.parametrize("threads", [1, 2, 3, 7])
 def test_stripes_do_not_change_the_partition(engine, threads):
     cfg = config(2500, 34.0)

@@ -7,8 +7,10 @@ neighbours. :class:`LaneComponents` lets that same pass find the connected compo
 The grid's layers (the last cell coordinate, and the replica) are cut into stripes of consecutive layers; each
 stripe is one task, its runs of cells taken in slot order by one thread. Every agent of a stripe is settled when its
 block of lanes closes: it joins the sets of its neighbours at smaller slots in the same stripe (all settled before
-it), so in the vector loop a block only keeps, per lane, the set label (``parent``) its near candidates before it in the
-stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block. After the loop the
+it), so in the vector loop a block only keeps, per lane, the set label (:func:`candidate_label`) its near candidates
+before it in the stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block.
+A span of candidates that carries one label (nearly every span inside a flock) folds it once, into the lanes that
+found one of them near (:func:`span_labels`), instead of once per candidate. After the loop the
 block's lanes find their roots: from the shared label (almost always) with one scalar step, or when MIXED by
 re-reading the lane's candidates and joining each one's set (:func:`block_roots`, :func:`join_candidate`); then
 the lanes within R of each other join those roots into one set (:func:`settle_block`). This phase writes only
@@ -66,6 +68,27 @@ def stripe_range(j, n_stripes, layers, layer_buckets, start: ti.template()):
     b_lo = (j * layers // n_stripes) * layer_buckets
     b_hi = ((j + 1) * layers // n_stripes) * layer_buckets
     return b_lo, b_hi, start[b_lo], start[b_hi]
+
+
+@ti.func
+def candidate_label(parent: ti.template(), k):
+    """The set label a candidate k before the block carries: its grandparent, a slot of its set that is the set's
+    root unless the set was merged twice since k settled (so the labels of one set seldom differ)."""
+    return parent[parent[k]]
+
+
+@ti.func
+def span_labels(parent: ti.template(), begin, end):
+    """The smallest and largest :func:`candidate_label` of the candidates [begin, end) (scalar; NO_LABEL and -1
+    when empty). Where they are equal the whole span carries one label: it is folded once, into the lanes that
+    found a candidate of the span near, instead of once per candidate (:func:`fold_label`)."""
+    lo = NO_LABEL
+    hi = -1
+    for k in range(begin, end):
+        label = candidate_label(parent, k)
+        lo = ti.min(lo, label)
+        hi = ti.max(hi, label)
+    return lo, hi
 
 
 @ti.func

@@ -47,10 +47,12 @@ from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
     block_roots,
+    candidate_label,
     degree_stats,
     fold_label,
     join_candidate,
     settle_block,
+    span_labels,
     stripe_range,
 )
 from tflock.metrics import (
@@ -373,7 +375,7 @@ def _accumulate_graph(begin, end, px, py, th, acc_a, acc_b, count, label, other,
             acc_a += ti.select(near, payload[2, k], 0.0)
         count += ti.select(near, 1.0, 0.0)
         if ti.static(part == BEFORE):
-            label, other = fold_label(label, other, near, parent[k])
+            label, other = fold_label(label, other, near, candidate_label(parent, k))
         elif ti.static(part == BLOCK):
             inmask |= ti.select(near, 1 << (k - i0), 0)
     return acc_a, acc_b, count, label, other, inmask
@@ -384,13 +386,23 @@ def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, la
                    pos_sorted: ti.template(), payload: ti.template(), parent: ti.template(), rule: ti.template(),
                    minimum_image: ti.template()):
     """The span [begin, end) in slot order, cut where its candidates stop being in an earlier stripe, before the
-    block, in the block [i0, i1) and after it."""
+    block, in the block [i0, i1) and after it. The candidates before the block fold their labels one by one only
+    where they carry several (tflock.lane_graph.span_labels)."""
     acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
         begin, ti.min(end, s_lo), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted,
         payload, parent, rule, minimum_image, PLAIN)
-    acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
-        ti.max(begin, s_lo), ti.min(end, i0), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
-        pos_sorted, payload, parent, rule, minimum_image, BEFORE)
+    before, after = ti.max(begin, s_lo), ti.min(end, i0)
+    first, last = span_labels(parent, before, after)
+    if first == last:  # one label: folded once, into the lanes whose count the span raised
+        counted = count
+        acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+            before, after, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted, payload,
+            parent, rule, minimum_image, PLAIN)
+        label, other = fold_label(label, other, count > counted, first)
+    else:
+        acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
+            before, after, px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box, pos_sorted, payload,
+            parent, rule, minimum_image, BEFORE)
     acc_a, acc_b, count, label, other, inmask = _accumulate_graph(
         ti.max(begin, i0), ti.min(end, i1), px, py, th, acc_a, acc_b, count, label, other, inmask, i0, r2, box,
         pos_sorted, payload, parent, rule, minimum_image, BLOCK)
