@@ -191,14 +191,16 @@ def join_candidate(r, k, parent: ti.template(), size: ti.template()):
 
 
 @ti.kernel
-def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, radius: float, box: float, nc: ti.i32,
-                   n_buckets: ti.i32, layout: ti.template(), metric: ti.template(), dim: ti.template(),
-                   start: ti.types.ndarray(), mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-                   coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
-    """Join the pairs within R whose agents lie in two stripes, in one serial pass. Cells are at least R wide, so
-    such a pair joins the first layer of a stripe to the layer before it (the previous stripe's last, or across a
-    periodic wrap): the agents of each stripe's first layer are tested against the stencil spans one layer back
-    (the first third of :func:`stencil_span`'s spans, where the slowest axis steps back)."""
+def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2: float, box: float, nc: ti.i32,
+                   n_buckets: ti.i32, layout: ti.template(), metric: ti.template(), strict: ti.template(),
+                   dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                   pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
+                   size: ti.types.ndarray()):
+    """Join the pairs within R (|r|^2 <= r2, or < r2 where `strict`) whose agents lie in two stripes, in one serial
+    pass. Cells are at least R wide, so such a pair joins the first layer of a stripe to the layer before it (the
+    previous stripe's last, or across a periodic wrap): the agents of each stripe's first layer are tested against
+    the stencil spans one layer back (the first third of :func:`stencil_span`'s spans, where the slowest axis steps
+    back)."""
     ti.loop_config(serialize=True)
     for j in range(n_stripes):
         b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
@@ -210,8 +212,11 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, rad
                 begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
                 for k in range(begin, end):
                     if k < s_lo or k >= s_hi:
-                        d = displacement(p, load_vec(pos_sorted, k, dim), box, metric)
-                        if d.norm_sqr() <= radius * radius:
+                        d2 = displacement(p, load_vec(pos_sorted, k, dim), box, metric).norm_sqr()
+                        near = d2 <= r2
+                        if ti.static(strict):
+                            near = d2 < r2
+                        if near:
                             a = local_root(parent, s)
                             z = local_root(parent, k)
                             if a != z:
@@ -257,16 +262,18 @@ class LaneComponents:
         n_stripes = max(1, min(STRIPES_PER_THREAD * self.threads, layers // MIN_STRIPE_LAYERS))
         return n_stripes, layers, layer_buckets
 
-    def finish(self, radius: float, box: float, metric: int) -> tuple[int, int]:
-        """Join the pairs across stripes and count: ``(components, agents in the largest)``. `metric` is the
-        boundary code whose displacement measures distances (the periodic box's for a window grid)."""
+    def finish(self, r2: float, box: float, metric: int, strict: bool = False) -> tuple[int, int]:
+        """Join the pairs across stripes and count: ``(components, agents in the largest)``. Pairs are joined where
+        |r|^2 <= r2 (< r2 where `strict`), r2 as the model's own pass has it (the squared radius in the run's
+        precision); `metric` is the boundary code whose displacement measures distances (the periodic box's for a
+        window grid)."""
         grid = self.grid
         g = grid.geometry
         n_stripes, layers, layer_buckets = self.stripes()
         if n_stripes > 1:
-            _cross_stripes(n_stripes, layers, layer_buckets, radius, box, g.cells_per_side, g.n_buckets, g.boundary,
-                           metric, g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent,
-                           self.size)
+            _cross_stripes(n_stripes, layers, layer_buckets, r2, box, g.cells_per_side, g.n_buckets, g.boundary,
+                           metric, strict, g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted,
+                           self.parent, self.size)
         _count_components(grid.n, self.parent, self.size, self.result)
         return int(self.result[0]), int(self.result[1])
 

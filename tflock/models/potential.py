@@ -40,10 +40,8 @@ from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
     block_roots,
-    count_roots,
     fold_label,
     join_candidate,
-    local_root,
     settle_block,
     stripe_range,
 )
@@ -65,6 +63,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.space import OPEN
 from tflock.taichi_host import host_view
 
 #: a fixed-graph swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch
@@ -480,7 +479,7 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
                       run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
                       parent: ti.types.ndarray(), size: ti.types.ndarray()):
     """The components of the graph |r_ij| < R in ``parent``, ``LANES`` agents at a time (stripes of layers, a stripe
-    a task, see :mod:`tflock.lane_graph`; :func:`_cross_stripes_strict` and :func:`_count_roots` complete them)."""
+    a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them)."""
     ti.loop_config(block_dim=1)  # a stripe a task
     for j in range(n_stripes):
         b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
@@ -514,34 +513,6 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
                     roots[q] = root
                     recheck ^= bit
                 settle_block(i0, i1 - i0, roots, inmask, parent, size)
-
-
-@ti.kernel
-def _cross_stripes_strict(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2cut: float, nc: ti.i32,
-                          n_buckets: ti.i32, layout: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
-                          mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-                          coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
-    """Join the pairs |r_ij| < R whose agents lie in two stripes of :func:`_components_lanes`, in one serial pass:
-    :meth:`tflock.lane_graph.LaneComponents.finish`'s pass with this model's strict test (the agents of each
-    stripe's first layer against the stencil spans one layer back)."""
-    ti.loop_config(serialize=True)
-    for j in range(n_stripes):
-        b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
-        for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
-            here = load_vec(pos_sorted, s, dim)
-            c = load_cell(coords_sorted, s, dim)
-            for o in range(ti.static(span_count(layout, dim) // 3)):
-                lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
-                begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
-                for k in range(begin, end):
-                    if (k < s_lo or k >= s_hi) and (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
-                        join_candidate(local_root(parent, s), k, parent, size)
-
-
-@ti.kernel
-def _count_roots(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
-    """result = (components, agents in the largest)."""
-    count_roots(n, parent, size, result)
 
 
 @ti.kernel
@@ -840,11 +811,7 @@ class Potential(GridModel):
         _components_lanes(*stripes, g.cells_per_side, r2cut, self.dim, g.boundary, grid.start, grid.runs(),
                           grid.id_sorted, grid.pos_sorted, found.parent, found.size)
         self._next_step.summed = (self.step_index, grid.builds)
-        if stripes[0] > 1:
-            _cross_stripes_strict(*stripes, r2cut, g.cells_per_side, g.n_buckets, g.boundary, self.dim, grid.start,
-                                  grid.mixed, grid.pos_sorted, grid.coords_sorted, found.parent, found.size)
-        _count_roots(p.n, found.parent, found.size, found.result)
-        self._components_found = (self.step_index, int(found.result[0]))
+        self._components_found = (self.step_index, found.finish(r2cut, p.box, OPEN, strict=True)[0])  # |r_ij| < R
 
     def lyapunov(self) -> Lyapunov:
         """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic

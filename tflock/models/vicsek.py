@@ -859,7 +859,8 @@ class Vicsek(GridModel):
                               grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
                               self.components.parent, self.components.size)
         self._summed = (self.step_index, grid.builds)
-        clusters, largest = self.components.finish(p.radius, p.box, boundary)
+        radius = self.grid.real(p.radius)  # R^2 as the pass above squares it, in the run's precision
+        clusters, largest = self.components.finish(float(radius * radius), p.box, boundary)
         payload, sums = host_view(self.payload), host_view(self.sums)  # lane-wise: on the CPU
         c, s = payload[0].sum(dtype=np.float64), payload[1].sum(dtype=np.float64)
         mean_neighbors, max_neighbors = degree_stats(sums[2])
