@@ -1,6 +1,7 @@
 """The recording as a person sees it: Rerun's web viewer in headless Chromium (tflock.screenshot), and
 `tflock view --web` on free ports."""
 
+import contextlib
 import os
 import re
 import signal
@@ -64,7 +65,8 @@ def test_view_web_picks_free_ports_and_prints_the_address(tmp_path: Path) -> Non
     code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler)\n"
             "from tflock.cli import app\napp()\n")
     children = [subprocess.Popen([sys.executable, "-c", code, "view", str(path), "--web"], stdout=subprocess.PIPE,
-                                 stderr=subprocess.DEVNULL, text=True, env=env) for _ in range(2)]
+                                 stderr=subprocess.DEVNULL, text=True, env=env, start_new_session=True)
+                for _ in range(2)]  # each in a process group of its own, with the viewer it starts
     try:
         urls = []
         for child in children:
@@ -85,7 +87,10 @@ def test_view_web_picks_free_ports_and_prints_the_address(tmp_path: Path) -> Non
             try:
                 child.wait(timeout=10)
             except subprocess.TimeoutExpired:
-                child.kill()
+                pass
+            with contextlib.suppress(ProcessLookupError):  # the viewer too, had `tflock view` not stopped it
+                os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
 
 
 def test_loaded_step_reads_the_viewers_step_timeline() -> None:
