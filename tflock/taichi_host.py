@@ -31,17 +31,22 @@ def host_view(array: Any) -> np.ndarray | None:
     """A NumPy array over ``array``'s own memory (writes go to the ndarray), or None where there is none to
     share (GPU arches, elements that are vectors or matrices). Valid while ``array`` lives and until the next
     kernel writes it."""
-    if type(array) is not ScalarNdarray or impl.current_cfg().arch not in _CPU_ARCHES:
+    if type(array) is not ScalarNdarray:
         return None
-    shape = tuple(array.arr.total_shape())
-    dtype = np.dtype(to_numpy_type(array.dtype))
-    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
-    if nbytes == 0:
-        return np.zeros(shape, dtype)
+    view = array.__dict__.get("_tflock_view")  # made once: an ndarray's memory stays where it is
+    if view is None:
+        if impl.current_cfg().arch not in _CPU_ARCHES:
+            return None
+        shape = tuple(array.arr.total_shape())
+        dtype = np.dtype(to_numpy_type(array.dtype))
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if nbytes == 0:
+            return np.zeros(shape, dtype)
+        address = impl.get_runtime().prog.get_ndarray_data_ptr_as_int(array.arr)
+        memory = (ctypes.c_char * nbytes).from_address(address)
+        view = array.__dict__["_tflock_view"] = np.frombuffer(memory, dtype=dtype).reshape(shape)
     impl.get_runtime().sync()  # CPU launches return when done; this keeps it so (3 us)
-    address = impl.get_runtime().prog.get_ndarray_data_ptr_as_int(array.arr)
-    memory = (ctypes.c_char * nbytes).from_address(address)
-    return np.frombuffer(memory, dtype=dtype).reshape(shape)
+    return view
 
 
 def _to_numpy(original: Callable[[Any], np.ndarray]) -> Callable[[Any], np.ndarray]:
