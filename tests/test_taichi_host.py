@@ -9,7 +9,7 @@ from taichi.lang._ndarray import ScalarNdarray
 
 from tflock.guard import Guarded, first_non_finite, kernel_first_non_finite
 from tflock.metrics import BLOCK, kernel_total, total
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_array, host_view
 
 DTYPES = [(ti.f32, np.float32), (ti.f64, np.float64), (ti.i32, np.int32), (ti.i64, np.int64),
           (ti.u8, np.uint8), (ti.u32, np.uint32)]
@@ -136,3 +136,16 @@ def test_guard_finds_what_its_kernel_finds(engine, wide):
             put(array, index, value)
         assert first_non_finite(guarded(), ids) == want
         assert kernel_first_non_finite(guarded(), ids) == want
+
+
+def test_host_array_is_the_view_or_a_copy(engine):
+    """host_array: the ndarray's own memory where a host view exists (writes reach the ndarray), else a copy; the
+    values either way."""
+    array = ti.ndarray(ti.f32, (3, 5))
+    array.from_numpy(np.arange(15, dtype=np.float32).reshape(3, 5))
+    values = host_array(array)
+    np.testing.assert_array_equal(values, np.arange(15, dtype=np.float32).reshape(3, 5))
+    view = host_view(array)
+    assert (view is not None) == (ARCH == "cpu")
+    if view is not None:
+        assert values is view  # no copy, the same view each time

@@ -41,7 +41,7 @@ from tflock.neighbors import (
     stencil_span,
 )
 from tflock.space import BOUNDARIES, OPEN, PERIODIC, displacement
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_array
 
 
 @ti.func
@@ -366,8 +366,7 @@ class Components:
         _pair_sizes(grid.n, self.parent, self.size, self.result)
         clusters, largest, _ = (int(v) for v in self.result.to_numpy())
         self.slot_grid = grid
-        view = host_view(self.pairs)
-        edges = float((view if view is not None else self.pairs.to_numpy()).sum(dtype=np.int64))
+        edges = float(host_array(self.pairs).sum(dtype=np.int64))
         self.dense = self._occupancy(2.0 * edges / grid.n) >= DENSE_SUBCELL
         return clusters, largest
 

@@ -29,7 +29,7 @@ from tflock.neighbors import (
 )
 from tflock.rng import Stream, hash_ti, randint_ti
 from tflock.space import OPEN, displacement, wrap_pi
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_array, host_view
 
 BLOCK = 4096
 
@@ -283,8 +283,7 @@ def mean(values: ti.Ndarray, n: int) -> float:
 
 def maximum(values: ti.Ndarray, n: int) -> float:
     """Largest of ``values[:n]`` (NumPy over the ndarray's memory on the CPU, a copy elsewhere)."""
-    view = host_view(values)
-    return float((view if view is not None else values.to_numpy())[:n].max())
+    return float(host_array(values)[:n].max())
 
 
 #: up to this many agents, e_d and e_theta are exact (all n (n - 1) / 2 pairs); above, estimates

@@ -6,9 +6,10 @@ host memory, so a NumPy view of that memory does the same copy with no kernel: a
 instantiations before its first step (each costs tens of milliseconds however small), and a copy runs at memory
 speed.
 
-:func:`host_view` gives that view (CPU, scalar elements; ``None`` elsewhere); :func:`copy_on_host` makes
-``to_numpy``, ``from_numpy`` and ``fill`` of such ndarrays use it. The values are the same: a plain copy, and
-NumPy's assignment casts as Taichi's copy kernels do (round to nearest, truncation toward zero for integers).
+:func:`host_view` gives that view (CPU, scalar elements; ``None`` elsewhere), :func:`host_array` the view or else a
+copy; :func:`copy_on_host` makes ``to_numpy``, ``from_numpy`` and ``fill`` of such ndarrays use it. The values are
+the same: a plain copy, and NumPy's assignment casts as Taichi's copy kernels do (round to nearest, truncation
+toward zero for integers).
 GPU arches and ndarrays of vectors or matrices keep Taichi's own code.
 """
 
@@ -47,6 +48,12 @@ def host_view(array: Any) -> np.ndarray | None:
         view = array.__dict__["_tflock_view"] = np.frombuffer(memory, dtype=dtype).reshape(shape)
     impl.get_runtime().sync()  # CPU launches return when done; this keeps it so (3 us)
     return view
+
+
+def host_array(array: Any) -> np.ndarray:
+    """``array``'s values as NumPy: its :func:`host_view` where there is one (no copy), else a copy."""
+    view = host_view(array)
+    return view if view is not None else array.to_numpy()
 
 
 def _to_numpy(original: Callable[[Any], np.ndarray]) -> Callable[[Any], np.ndarray]:

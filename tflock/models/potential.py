@@ -64,7 +64,7 @@ from tflock.neighbors import (
     stencil_span,
 )
 from tflock.space import OPEN
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_array, host_view
 
 #: a fixed-graph swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch
 FUSED_MAX_N = 4096
@@ -872,8 +872,7 @@ class Potential(GridModel):
         if n <= EXACT_PAIRS_MAX:
             _exact_nearest(n, self.dim, self.pos, self.nearest)
         if self.switching:
-            valency = host_view(self.valency)
-            valency = valency if valency is not None else self.valency.to_numpy()
+            valency = host_array(self.valency)
             found = self._components_found
             if found is not None and found[0] == self.step_index:  # by _pair_energies' pass
                 components = float(found[1])
@@ -883,8 +882,7 @@ class Potential(GridModel):
             valency = self.valency_np
         stats = self._velocity_stats()
         potential = total(self.energy, n)
-        nearest = host_view(self.nearest)
-        nearest = nearest if nearest is not None else self.nearest.to_numpy()
+        nearest = host_array(self.nearest)
         out = {
             **stats,
             "potential_energy": potential,
