@@ -161,6 +161,37 @@ def test_a_recording_carries_the_band_profile(cpu_engine, tmp_path):
     assert sim.model.profile_descriptions == {}
 
 
+def test_a_frame_profiles_its_own_state(cpu_engine):
+    """A frame drawn at a metrics step reuses that step's slab counts and mean heading; it still profiles the state
+    it draws: the same bars as a frame of a model that took no metrics, along the axis nearest to the mean heading of
+    the NumPy reference, and new bars for a state set at the same step."""
+    from tflock.models.vicsek import Vicsek
+    from tflock.simulation import Simulation
+
+    config = {"model": "vicsek", "params": {"n": 400, "box": 10.0, "noise": 0.2}, "steps": 30,
+              "engine": {"precision": cpu_engine.precision}}
+    measured, plain = Simulation(config, record=False).model, Simulation(config, record=False).model
+    selected = np.arange(10)
+    for model in (measured, plain):
+        model.advance(30)
+    measured.metrics()
+    bars = measured.frame(selected, 0).profiles["band_profile"]
+    np.testing.assert_array_equal(bars, plain.frame(selected, 0).profiles["band_profile"])
+    state = measured.state()
+    theta = state["theta"].astype(np.float64)
+    axis = int(np.argmax(np.abs([np.cos(theta).sum(), np.sin(theta).sum()])))
+    expected = axis_profile_np(state["x"].astype(REAL), axis, 10.0, 10) * (10 / 400)
+    np.testing.assert_allclose(bars, expected)
+
+    moved = dict(state, x=np.ascontiguousarray(state["x"][:, ::-1]))  # the same step, the axes swapped
+    measured.set_state(moved, measured.step_index)
+    swapped = measured.frame(selected, 0).profiles["band_profile"]
+    fresh = Vicsek(measured.params, measured.seed, measured.engine)
+    fresh.set_state(moved, measured.step_index)
+    np.testing.assert_array_equal(swapped, fresh.frame(selected, 0).profiles["band_profile"])
+    assert not np.array_equal(swapped, bars)
+
+
 def test_giant_number_fluctuations_of_the_ordered_vicsek_phase(cpu_engine):
     """Chate et al. (2008): deep in the ordered phase of the 2D Vicsek model (density 2, v0 = 0.5) the number
     fluctuations are giant, Delta N ~ <N>^0.8; a disordered swarm (eta = 2 pi) has Poisson ones, a = 1/2."""

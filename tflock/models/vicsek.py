@@ -728,6 +728,8 @@ class Vicsek(GridModel):
         self._grid_step = -1  # step whose positions the grid holds
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
+        self._states = 0  # states set so far (see _state_key)
+        self._measured: tuple[tuple[int, int, int], float] | None = None  # the last metrics' state, mean heading
         draws = [initial_state(params, seed + r) for r in range(replicas)]
         self.set_state({k: np.concatenate([d[k] for d in draws]) for k in draws[0]}, 0)
 
@@ -743,6 +745,7 @@ class Vicsek(GridModel):
         if self.lane_wise or self.topological:
             cos_sin(self.n_total, self.theta, self.trig)
         self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
+        self._states += 1
         self.turn.fill(0)
         self.updated.fill(0)
         if self.asynchronous:
@@ -845,8 +848,26 @@ class Vicsek(GridModel):
         if p.leader.enabled:  # the leader's own term is 0
             out["leader_error"] = leader_gap / (p.n - 1) if p.n > 1 else 0.0
         heading = np.array([[math.cos(out["mean_heading"]), math.sin(out["mean_heading"])]])
-        out.update({k: float(v[0]) for k, v in self.observables.compute(self.pos, self.ids, heading).items()})
+        self._measured = (self._state_key(), out["mean_heading"])
+        out.update({k: float(v[0]) for k, v in
+                    self.observables.compute(self.pos, self.ids, heading, self._measured[0]).items()})
         return {name: out[name] for name in self.metric_descriptions}
+
+    def _state_key(self) -> tuple[int, int, int]:
+        """Names the current state for what metrics and a frame of the same step share: the step, the grid build
+        and the states set."""
+        return self.step_index, self.grid.builds, self._states
+
+    def _mean_heading(self) -> float:
+        """The circular mean heading of the current state: the one :meth:`metrics` found at this state, or from the
+        cos and sin of every heading the lane-wise step keeps (no trigonometry), or from the headings."""
+        if self._measured is not None and self._measured[0] == self._state_key():
+            return self._measured[1]
+        unit = host_view(self.trig) if self.lane_wise or self.topological else None
+        if unit is None:
+            return heading_order(self.theta, self.params.n)[1]
+        c, s = unit[:, : self.params.n].sum(axis=1, dtype=np.float64)
+        return math.atan2(s, c) % TWO_PI
 
     def _lane_wise_metrics(self) -> dict[str, float]:
         """Order parameter and R-graph metrics from the next step's own neighbour pass, run now (its sums are kept
@@ -918,8 +939,9 @@ class Vicsek(GridModel):
             fields = self._field_images(field_size, self.pos, self.trig, UNIT_VECTORS, grid)
         else:
             fields = self._field_images(field_size, self.pos, self.theta, ANGLES, grid)
-        heading = heading_order(self.theta, p.n)[1] if self.observables.enabled else 0.0
-        profiles = self.observables.frame_profiles(self.pos, self.ids, np.array([math.cos(heading), math.sin(heading)]))
+        heading = self._mean_heading() if self.observables.enabled else 0.0
+        profiles = self.observables.frame_profiles(self.pos, self.ids, np.array([math.cos(heading), math.sin(heading)]),
+                                                   self._state_key())
         return Frame(
             positions=np.asarray(drawn[0], dtype=np.float32),
             directions=np.asarray(drawn[1], dtype=np.float32),
