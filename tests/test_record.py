@@ -215,6 +215,61 @@ def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) 
                  path=tmp_path / "x.rrd")
 
 
+def _frame_rows(path: Path) -> dict[tuple[str, int, str], object]:
+    """Every (entity, step, component) value of a recording's frames, whatever chunks hold them."""
+    from rerun.chunk import RrdReader
+
+    rows = {}
+    for chunk in RrdReader(path).stream():
+        if not chunk.entity_path.startswith(("/world/agents", "/world/edges", "/profiles")) or not chunk.num_rows:
+            continue
+        batch = chunk.to_record_batch()
+        if "step" not in batch.schema.names:
+            continue
+        steps = batch.column("step").to_pylist()
+        for name in batch.schema.names:
+            if ":" in name:
+                for step, value in zip(steps, batch.column(name).to_pylist(), strict=True):
+                    if value is not None:
+                        rows[(chunk.entity_path, step, name)] = value
+    return rows
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_gathered_frames_hold_what_frames_logged_one_by_one_hold(tmp_path: Path, monkeypatch, dim: int) -> None:
+    """Small frames go to Rerun as columns of many steps (tflock.frame_columns): the recording has the same
+    positions, colours, arrows, edges (cleared where a frame draws none) and bar charts at every step as one log
+    call per frame writes, and the styles (radii, draw order, edge colour) from the first frame on."""
+    import tflock.frame_columns as frame_columns
+    import tflock.record as record
+
+    def write(path: Path, gather: int) -> None:
+        monkeypatch.setattr(record, "GATHER_AGENTS", gather)
+        monkeypatch.setattr(frame_columns, "GATHER_FRAMES", 7)  # sent in several batches
+        rng = np.random.default_rng(3)
+        with Recorder(model="vicsek", config_toml=CONFIG, world=WorldSpec(dim, "periodic", 10.0, dt=0.5),
+                      metrics=METRICS, profiles={"band_profile": "slabs"}, path=path) as rec:
+            for step in range(STEPS):
+                frame = synthetic_frame(rng, dim, n_edges=None if step in (4, 5, 12) else 3 + step % 4)
+                frame.profiles = {"band_profile": rng.random(6)}
+                rec.log_frame(step, frame)
+
+    write(tmp_path / "one-by-one.rrd", 0)
+    write(tmp_path / "gathered.rrd", 1000)
+    one, gathered = _frame_rows(tmp_path / "one-by-one.rrd"), _frame_rows(tmp_path / "gathered.rrd")
+    styles = ("radii", "draw_order")
+    for (entity, step, name), value in one.items():
+        if name.endswith(styles) or (entity == "/world/edges" and name.endswith("colors")):
+            assert gathered[(entity, 0, name)] == value  # logged once, at the first frame
+        else:
+            assert gathered[(entity, step, name)] == value, (entity, step, name)
+    points = {(e, s) for e, s, n in gathered if n.endswith("positions") and e == "/world/agents"}
+    assert len(points) == STEPS
+    assert gathered[("/world/edges", 4, f"LineStrips{dim}D:strips")] == []  # no edges: the last ones cleared
+    summary = read_recording(tmp_path / "gathered.rrd")
+    assert summary.steps == list(range(STEPS))
+
+
 CHILD = textwrap.dedent(
     """
     import signal, sys
@@ -238,6 +293,7 @@ CHILD = textwrap.dedent(
         pass
     finally:
         rec.close()
+        print(step, flush=True)
     """
 )
 
@@ -256,16 +312,20 @@ def test_interrupted_run_is_complete(tmp_path: Path) -> None:
             assert child.stdout.readline().strip() == "ready"
             time.sleep(0.2)
             child.send_signal(sig)
-        for _, child in runs.values():
+        logged = {}
+        for sig, (_, child) in runs.items():
             assert child.wait(timeout=15) == 0
+            logged[sig] = int(child.stdout.read().split()[-1])  # steps begun; the last may be half logged
     finally:
         for _, child in runs.values():
             if child.poll() is None:
                 child.kill()
-    for path, _ in runs.values():
+    for sig, (path, _) in runs.items():
         assert verify_recording(path), path
         summary = read_recording(path)
         assert summary.frames >= 5
+        assert summary.steps[:logged[sig]] == list(range(logged[sig]))  # every frame drawn, gathered ones too
+        assert summary.frames in (logged[sig], logged[sig] + 1)
         assert summary.metric_rows >= 5
 
 

@@ -55,6 +55,7 @@ import rerun.blueprint as rrb
 
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
 from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
+from tflock.frame_columns import GATHER_AGENTS, FrameColumns
 
 __all__ = [
     "BOUNDARIES",
@@ -354,6 +355,7 @@ class Recorder:
         self._metric_rows = 0
         self._pending: dict[str, tuple[list[int], list[float]]] = {}  # metric rows not yet handed to Rerun
         self._pending_rows, self._pending_since = 0, time.monotonic()
+        self._styles: float | None = None  # point radius of the styles logged for gathered frames
 
         sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
@@ -364,6 +366,7 @@ class Recorder:
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id, default_enabled=self.enabled,
                                       batcher_config=batcher_config())
         self.rec.set_log_time_enabled(False)
+        self._frames = FrameColumns(self.rec, world.dim, world.dt, AGENTS, HEADINGS, EDGES, PROFILES)
         self._csv_file: IO[str] | None = None
         try:
             if self.metrics_table is not None:
@@ -614,24 +617,37 @@ class Recorder:
         rec = self.rec
         self._set_time(step)
         self._log_ids(frame.ids, pos.shape[0])
-        rec.log(AGENTS, Points(pos, colors=colors, radii=rr.Radius.ui_points(radius), **order))
-        rec.log(
-            HEADINGS,
-            Arrows(origins=pos, vectors=dirs * np.float32(frame.arrow_length), colors=colors,
-                   radii=rr.Radius.ui_points(max(0.5, 0.4 * radius)),
-                   **({"draw_order": DRAW_ARROWS} if dim == 2 else {})),
-        )
+        vectors = dirs * np.float32(frame.arrow_length)
+        agent_style = {"radii": rr.Radius.ui_points(radius), **order}
+        arrow_style = {"radii": rr.Radius.ui_points(max(0.5, 0.4 * radius)),
+                       **({"draw_order": DRAW_ARROWS} if dim == 2 else {})}
+        edge_style = {"colors": EDGE_COLOR, "radii": rr.Radius.ui_points(0.5),
+                      **({"draw_order": DRAW_EDGES} if dim == 2 else {})}
+        draw_edges = edges is not None or self._edges_drawn  # an empty batch clears edges drawn at earlier steps
+        if draw_edges and edges is None:
+            edges = np.zeros((0, 2, dim), dtype=np.float32)
+        strips = _strips(edges) if draw_edges else None
+        gather = pos.shape[0] <= GATHER_AGENTS
+        if gather:  # the per-step parts wait in self._frames; the styles are logged here when they change
+            if self._styles != radius:
+                rec.log(AGENTS, Points.from_fields(**agent_style))
+                rec.log(HEADINGS, Arrows.from_fields(**arrow_style))
+                self._styles = radius
+            if draw_edges and not self._edges_drawn:
+                rec.log(EDGES, Strips.from_fields(**edge_style))
+        else:
+            self._frames.send()
+            self._styles = None
+            rec.log(AGENTS, Points(pos, colors=colors, **agent_style))
+            rec.log(HEADINGS, Arrows(origins=pos, vectors=vectors, colors=colors, **arrow_style))
+            if draw_edges:
+                rec.log(EDGES, Strips(strips, **edge_style))
+        self._edges_drawn = draw_edges
         if frame.arrow_length != self._arrow_length:  # scene length of a full-speed arrow, logged when it changes
             rec.log(HEADINGS, rr.AnyValues(arrow_length=float(frame.arrow_length)))
             self._arrow_length = frame.arrow_length
         if self.trail:
             self._log_trail(pos, colors, Strips)
-        if edges is not None or self._edges_drawn:  # an empty batch clears edges drawn at earlier steps
-            if edges is None:
-                edges = np.zeros((0, 2, dim), dtype=np.float32)
-            rec.log(EDGES, Strips(_strips(edges), colors=EDGE_COLOR, radii=rr.Radius.ui_points(0.5),
-                                  **({"draw_order": DRAW_EDGES} if dim == 2 else {})))
-            self._edges_drawn = True
         markers = {"draw_order": DRAW_MARKERS} if dim == 2 else {}
         if frame.leader is not None or self._leader_drawn:
             lead = np.zeros((0, dim), np.float32)
@@ -652,8 +668,11 @@ class Recorder:
             self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
         for image in frame.fields:
             self._log_field(image)
-        for name, values in frame.profiles.items():
-            rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
+        if gather:
+            self._frames.add(step, pos, colors, vectors, strips, 0 if edges is None else len(edges), frame.profiles)
+        else:
+            for name, values in frame.profiles.items():
+                rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
 
     def _log_ids(self, ids: np.ndarray | None, m: int) -> None:
         """The agent id of each row as its label (shown when hovering it), logged when the drawn agents change."""
@@ -780,6 +799,7 @@ class Recorder:
     def flush(self) -> None:
         """Wait until everything logged so far has gone through Rerun's batcher to the sinks (its encoding and
         writing run on background threads)."""
+        self._frames.send()
         self._send_metrics()
         self.rec.flush()
 
@@ -793,6 +813,7 @@ class Recorder:
             return
         self._closed = True
         try:
+            self._frames.send()
             self._send_metrics()
             constant = self.constant_metrics()
             if len(constant) == len(self.metrics):  # nothing changed: no plot stands apart
@@ -823,7 +844,7 @@ class RecordingSummary:
 
     model: str
     config_toml: str  # the fenced TOML block of the config document, ending with a newline
-    frames: int  # rows of world/agents
+    frames: int  # steps with a row of world/agents positions (a step logged twice is one frame, as in the viewer)
     steps: list[int]  # step of each frame, ascending
     metric_rows: int  # rows of the longest metric series
     final_metrics: dict[str, float]  # value at the last step of each metric
@@ -908,8 +929,8 @@ def read_recording(path: Path) -> RecordingSummary:
     return RecordingSummary(
         model=model,
         config_toml=match.group(2) + "\n",
-        frames=len(steps),
-        steps=sorted(steps),
+        frames=len(set(steps)),
+        steps=sorted(set(steps)),
         metric_rows=max((len(p) for p in metric_points.values()), default=0),
         final_metrics=final,
         entities=sorted(entities),

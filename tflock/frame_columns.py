@@ -1,0 +1,115 @@
+"""Small frames gathered and handed to Rerun as columns (DESIGN.md section 5, the Rerun layout).
+
+Logging a frame costs Rerun's Python side about a millisecond whatever its size (building four archetypes and
+four log calls), which is most of a small swarm's step when every step is drawn. :class:`FrameColumns` keeps the
+per-step parts of small frames (the agents' positions and colours, the heading arrows, the neighbour edges and the
+profiles' bar charts) and sends each entity's rows with one ``send_columns`` call for many steps: every
+:data:`GATHER_FRAMES` frames, :data:`GATHER_S` seconds after the first one waiting, and whenever the recorder
+flushes or closes (so a run stopped with Ctrl-C keeps every frame it drew). The recording holds the same rows on
+the same timelines as one log call per frame would write; what does not change from frame to frame (point radii,
+draw order, the edges' colour) is logged by the recorder when it changes.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+from rerun._unions import build_dense_union
+from rerun.encodings import TensorDataBatch
+
+#: frames of at most this many drawn agents are gathered; larger ones are logged as they come
+GATHER_AGENTS = 2048
+#: gathered frames are sent after this many, or this many seconds after the first one waiting
+GATHER_FRAMES, GATHER_S = 256, 0.5
+
+
+def bar_chart_rows(values: np.ndarray) -> pa.Array:
+    """Rows of ``BarChart:values`` (Rerun TensorData, a 1D f32 tensor each) for `values` (K, bins): one array for K
+    charts, where Rerun's Python API builds one chart per call."""
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    k, bins = values.shape
+    dtype = TensorDataBatch._ARROW_DATATYPE
+    shape = pa.ListArray.from_arrays(pa.array(np.arange(k + 1, dtype=np.int32)),
+                                     pa.array(np.full(k, bins, dtype=np.uint64)), type=dtype.field("shape").type)
+    lists = pa.ListArray.from_arrays(pa.array(np.arange(0, k * bins + 1, bins, dtype=np.int32)),
+                                     pa.array(values.ravel()))
+    buffer = build_dense_union(dtype.field("buffer").type, "F32", lists)
+    names = pa.nulls(k, type=dtype.field("names").type)
+    return pa.StructArray.from_arrays([shape, names, buffer], fields=list(dtype))
+
+
+class _Gathered(NamedTuple):
+    """One frame's per-step parts."""
+
+    step: int
+    positions: np.ndarray  # (m, dim) f32
+    colors: np.ndarray  # (m,) packed RGBA
+    vectors: np.ndarray  # (m, dim) f32
+    strips: pa.ListArray | None  # the edges, None where the frame draws none
+    strip_count: int
+    profiles: dict[str, np.ndarray]  # bar chart values (f32)
+
+
+class FrameColumns:
+    """The small frames of a recording not yet handed to Rerun (see the module)."""
+
+    def __init__(self, rec: rr.RecordingStream, dim: int, dt: float, agents: str, headings: str, edges: str,
+                 profiles: str) -> None:
+        self.rec, self.dim, self.dt = rec, dim, dt
+        self.entities = (agents, headings, edges, profiles)
+        self._gathered: list[_Gathered] = []
+        self._sent: set[str] = set()  # entities whose columns of the gathered frames went already
+        self._since = time.monotonic()
+
+    def add(self, step: int, positions: np.ndarray, colors: np.ndarray, vectors: np.ndarray,
+            strips: pa.ListArray | None, strip_count: int, profiles: dict[str, np.ndarray]) -> None:
+        """Keep one frame (`strips`: its edges, None where the frame draws none); sent when due. The frame joins
+        the others in one list append, so an interrupt (Ctrl-C) leaves it either kept whole or not at all."""
+        bars = {name: np.asarray(values, dtype=np.float32) for name, values in profiles.items()}
+        gathered = self._gathered
+        shapes = {name: len(values) for name, values in bars.items()}
+        if self._sent or gathered and shapes != {name: len(v) for name, v in gathered[0].profiles.items()}:
+            self.send()  # a send left unfinished, or another set of bar charts: the gathered frames go first
+        if not self._gathered:
+            self._since = time.monotonic()
+        self._gathered.append(_Gathered(int(step), positions, colors, vectors, strips,
+                                        strip_count if strips is not None else 0, bars))
+        if len(self._gathered) >= GATHER_FRAMES or time.monotonic() - self._since >= GATHER_S:
+            self.send()
+
+    def send(self) -> None:
+        """Hand the gathered frames to Rerun, one ``send_columns`` per entity, and forget them. A send interrupted
+        (Ctrl-C) is finished by the next, which skips the entities already sent (one sent just as the interrupt
+        came may go twice: the same rows again, which the viewer shows as one)."""
+        frames = self._gathered
+        if not frames:
+            return
+        at = np.asarray([f.step for f in frames], dtype=np.int64)
+        indexes = [rr.TimeColumn("step", sequence=at), rr.TimeColumn("time", duration=at * self.dt)]
+        agents, headings, edges, profiles = self.entities
+        Points, Arrows, Strips = ((rr.Points2D, rr.Arrows2D, rr.LineStrips2D) if self.dim == 2
+                                  else (rr.Points3D, rr.Arrows3D, rr.LineStrips3D))
+        sizes = [len(f.positions) for f in frames]
+        positions = np.concatenate([f.positions for f in frames])
+        colors = np.concatenate([f.colors for f in frames])
+        columns = {
+            agents: lambda: Points.columns(positions=positions, colors=colors).partition(sizes),
+            headings: lambda: Arrows.columns(origins=positions, vectors=np.concatenate([f.vectors for f in frames]),
+                                             colors=colors).partition(sizes),
+        }
+        drawn = [f.strips for f in frames if f.strips is not None]
+        if drawn:
+            columns[edges] = lambda: Strips.columns(strips=pa.concat_arrays(drawn)).partition(
+                [f.strip_count for f in frames])
+        for name in frames[0].profiles:
+            columns[f"{profiles}/{name}"] = lambda name=name: rr.BarChart.columns(
+                values=bar_chart_rows(np.stack([f.profiles[name] for f in frames])))
+        for entity, column in columns.items():
+            if entity not in self._sent:
+                self.rec.send_columns(entity, indexes=indexes, columns=column())
+                self._sent.add(entity)
+        self._gathered, self._sent = [], set()
