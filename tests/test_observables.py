@@ -36,11 +36,17 @@ def upload(x: np.ndarray):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_box_counts_and_profiles_match_reference(engine, dim):
+@pytest.mark.parametrize("counted", ["kernel", "numpy"])
+def test_box_counts_and_profiles_match_reference(engine, dim, counted, monkeypatch):
+    """The kernels, and for small swarms on the CPU NumPy over the arrays' memory, count as the reference does."""
+    import tflock.observables
+
+    monkeypatch.setattr(tflock.observables, "HOST_COUNT_MAX", 0 if counted == "kernel" else 10**6)
     box, n, replicas = 7.0, 600, 3
     rng = np.random.default_rng(dim)
     systems = [rng.uniform(0, box, (n, dim)).astype(REAL) for _ in range(replicas)]
     systems[0][:5] = box  # on the far walls (a reflecting box holds x = L)
+    systems[1][:3] = np.nextafter(REAL(0), REAL(-1))  # just below 0, truncated into the first box
     pos, ids = upload(np.concatenate(systems))
     counts = box_counts(pos, ids, n, replicas, box, 8)
     profiles = axis_profile(pos, ids, n, [0, dim - 1, 1], box, 20)

@@ -27,6 +27,8 @@ from collections.abc import Hashable, Mapping, Sequence
 import numpy as np
 import taichi as ti
 
+from tflock.taichi_host import host_view
+
 #: metrics that are order parameters: the sweep tables give their Binder cumulant and susceptibility
 ORDER_PARAMETERS = ("polarization", "phi_theta")
 #: number fluctuations: the coarsest boxes per side, and the finest at most, in 2D and 3D
@@ -37,6 +39,8 @@ GNF_FINEST = {2: 256, 3: 32}
 PROFILE_BINS = 512
 BAND_SMOOTHING = 5
 BAND_THRESHOLD = 1.5
+#: up to this many agents (on the CPU), the counts are taken in NumPy: a kernel launch costs more
+HOST_COUNT_MAX = 4096
 
 
 # ---------------------------------------------------------------------------------------------------- statistics
@@ -87,12 +91,38 @@ def _axis_profile(n: ti.i32, per_replica: ti.i32, bins: ti.i32, scale: float, po
         ti.atomic_add(hist[r, b], 1)
 
 
+def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, per_side: int, scale: float,
+               axes: Sequence[int] | None) -> np.ndarray | None:
+    """What :func:`box_counts` (`axes` None) or :func:`axis_profile` (bins along each replica's axis) count, with
+    NumPy on the arrays' host memory, for at most HOST_COUNT_MAX agents on the CPU (None otherwise): the same
+    integer counts as the kernels (each coordinate times `scale` in the arrays' precision, truncated, clamped), with
+    no kernel launch, which costs more than counting a small swarm."""
+    n = pos.shape[1]
+    x = host_view(pos) if n <= HOST_COUNT_MAX else None
+    if x is None:
+        return None
+    replica = host_view(ids)[:n] // per_replica if replicas > 1 else np.zeros(n, dtype=np.int64)
+    with np.errstate(invalid="ignore"):  # a non-finite coordinate counts in the first box, as in the kernels
+        cells = np.clip(np.trunc(x[:, :n] * x.dtype.type(scale)).astype(np.int64), 0, per_side - 1)
+    if axes is None:
+        index = np.zeros(n, dtype=np.int64)
+        for a in range(x.shape[0] - 1, -1, -1):  # row-major, the last axis slowest
+            index = index * per_side + cells[a]
+        size = per_side ** x.shape[0]
+    else:
+        index, size = cells[np.asarray(axes, dtype=np.int64)[replica], np.arange(n)], per_side
+    return np.bincount(replica * size + index, minlength=replicas * size).reshape(replicas, size)
+
+
 def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, box: float, m: int,
                counts: ti.Ndarray | None = None) -> np.ndarray:
     """Agents in each of the m^d boxes of side box / m, per replica: (replicas, m, ..., m) ints, the first box axis
     the last coordinate (row-major). `pos` (d, n) and `ids` in any arrangement of the agents. `counts`: an i32
     ndarray (replicas, m^d) to count in (a new one when None: making one costs about a millisecond)."""
     dim, n = pos.shape
+    host = _host_bins(pos, ids, per_replica, replicas, m, m / box, None)
+    if host is not None:
+        return host.reshape((replicas,) + (m,) * dim)
     if counts is None:
         counts = ti.ndarray(ti.i32, (replicas, m**dim))
     counts.fill(0)
@@ -106,6 +136,9 @@ def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Seque
     `buffers`: i32 ndarrays (replicas,) for the axes and (replicas, bins) to count in (new ones when None)."""
     n = pos.shape[1]
     replicas = len(axes)
+    host = _host_bins(pos, ids, per_replica, replicas, bins, bins / box, axes)
+    if host is not None:
+        return host
     if buffers is None:
         buffers = (ti.ndarray(ti.i32, replicas), ti.ndarray(ti.i32, (replicas, bins)))
     axis, hist = buffers
