@@ -855,11 +855,13 @@ class Vicsek(GridModel):
 
     def advance(self, steps: int) -> None:
         """Run `steps` steps: the lane-wise step of at most :data:`FUSED_MAX_AGENTS` agents all in one launch
-        (:func:`_lane_wise_steps`), else one step (a few launches) at a time."""
+        (:func:`_lane_wise_steps`), else one step (a few launches) at a time. A single step whose neighbour sums the
+        metrics pass took is its update alone (one launch either way, and ``_update`` has fewer arguments to set)."""
         p = self.params
         g = self.grid.geometry
         inv_g = 1.0 / p.g if p.rule == "laplacian" else 0.0
-        if steps > 0 and self.lane_wise and self.n_total <= FUSED_MAX_AGENTS:
+        if (steps > 0 and self.lane_wise and self.n_total <= FUSED_MAX_AGENTS
+                and (steps > 1 or self._ready() < 2)):
             self._fused_steps(steps, inv_g)
             return
         for _ in range(steps):
@@ -892,14 +894,18 @@ class Vicsek(GridModel):
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
 
+    def _ready(self) -> int:
+        """What the next step finds done: 2 its neighbour sums (taken by the metrics pass), 1 the grid built for the
+        current positions (a frame, metrics), 0 nothing."""
+        if self._grid_step != self.step_index:
+            return 0
+        return 2 if self._summed == (self.step_index, self.grid.builds) else 1
+
     def _fused_steps(self, steps: int, inv_g: float) -> None:
         """`steps` lane-wise steps in one launch of :func:`_lane_wise_steps`, from the grid and the sums that are
         ready for the current state (built by a frame or summed by the metrics pass)."""
         p, grid = self.params, self.grid
-        t0 = self.step_index
-        ready = 0
-        if self._grid_step == t0:
-            ready = 2 if self._summed == (t0, grid.builds) else 1
+        t0, ready = self.step_index, self._ready()
         rule, vectorial = RULES[p.rule], p.noise_type == "vectorial"
         draw, bits, word_rank, drawn = self._draw_arguments(3, 2, made=t0 + steps)
         _lane_wise_steps(steps, t0, ready, draw, *grid.build_arguments(), grid.run_buffer(), self.seed, p.radius,
