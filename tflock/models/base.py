@@ -206,6 +206,10 @@ class GridModel(Model):
             self._drawn = (made, drawing, rows)
             return True, drawing.bits, drawing.word_rank, rows
         self._drawn = None
+        return self._no_draw_arguments(layers, width)
+
+    def _no_draw_arguments(self, layers: int, width: int) -> tuple:
+        """:meth:`_draw_arguments` of a step kernel that writes no frame rows (draw = False, unused arrays)."""
         if self._no_draw is None or self._no_draw[2].shape != (layers, 1, width):
             self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1),
                              np.zeros((layers, 1, width), dtype=self.grid.real))

@@ -620,7 +620,7 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
 
 
 @ti.kernel
-def _lane_wise_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, draw: ti.i32,
+def _lane_wise_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, finish: ti.i32, draw: ti.i32,
                      n: ti.i32, per_replica: ti.i32, box: float, cell_size: float, nc: ti.i32, n_buckets: ti.i32,
                      total_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
                      coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
@@ -639,10 +639,11 @@ def _lane_wise_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, draw: ti.i32,
     (:func:`tflock.neighbors.build_grid`, :func:`tflock.neighbors.cut_runs`), :func:`_sorted_headings`,
     :func:`_lane_sums` and :func:`_update_all`, the bodies of the step's own launches, so every step computes what
     they compute, bit for bit. For the first step, `ready` says what is done already: 1 the grid is built for the
-    current positions, 2 its neighbour sums are taken too (by the metrics pass); 0 nothing. With `draw`, the last
-    step writes the drawn agents' frame rows."""
+    current positions, 2 its neighbour sums are taken too (by the metrics pass); 0 nothing. With `finish`, the
+    launch then builds the grid of the state it made, its runs and sorted headings (what the metrics pass and a
+    frame read; steps = 0: only that). With `draw`, the last step writes the drawn agents' frame rows."""
     ti.loop_config(serialize=True)
-    for step in range(steps):
+    for step in range(steps + finish):
         if step > 0 or ready == 0:
             build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords,
                        bucket, counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
@@ -650,11 +651,13 @@ def _lane_wise_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, draw: ti.i32,
         if step > 0 or ready < 2:
             cut_runs(total_buckets // nc, nc, start, run_end)
             _sorted_headings(n, order, theta, trig, payload)
-            _lane_sums(total_buckets, nc, radius, box, summed_rule, boundary, start, run_end, pos_sorted, payload,
-                       sums)
-        _update_all(n, t0 + step, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
-                    vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
-                    ti.select(step == steps - 1, draw, 0), bits, word_rank, drawn)
+            if step < steps:
+                _lane_sums(total_buckets, nc, radius, box, summed_rule, boundary, start, run_end, pos_sorted,
+                           payload, sums)
+        if step < steps:
+            _update_all(n, t0 + step, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
+                        vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
+                        ti.select(step == steps - 1, draw, 0), bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -723,6 +726,8 @@ class Vicsek(GridModel):
     #: (step, grid build) whose neighbour sums metrics() already computed for the next step (a tuple, which
     #: checkpoint() leaves out)
     _summed: tuple[int, int] | None = None
+    #: (step, grid build) whose sorted headings ``payload`` holds, where the fused launch wrote them
+    _headed: tuple[int, int] | None = None
 
     @classmethod
     def can_batch(cls, params: VicsekParams) -> bool:
@@ -855,13 +860,12 @@ class Vicsek(GridModel):
 
     def advance(self, steps: int) -> None:
         """Run `steps` steps: the lane-wise step of at most :data:`FUSED_MAX_AGENTS` agents all in one launch
-        (:func:`_lane_wise_steps`), else one step (a few launches) at a time. A single step whose neighbour sums the
-        metrics pass took is its update alone (one launch either way, and ``_update`` has fewer arguments to set)."""
+        (:func:`_lane_wise_steps`, which also builds the grid of the state it makes), else one step (a few launches)
+        at a time."""
         p = self.params
         g = self.grid.geometry
         inv_g = 1.0 / p.g if p.rule == "laplacian" else 0.0
-        if (steps > 0 and self.lane_wise and self.n_total <= FUSED_MAX_AGENTS
-                and (steps > 1 or self._ready() < 2)):
+        if steps > 0 and self._fused():
             self._fused_steps(steps, inv_g)
             return
         for _ in range(steps):
@@ -894,6 +898,17 @@ class Vicsek(GridModel):
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
 
+    def _fused(self) -> bool:
+        """Whether steps, and the grid builds between them, run in :func:`_lane_wise_steps`."""
+        return self.lane_wise and self.n_total <= FUSED_MAX_AGENTS
+
+    def _ensure_grid(self) -> None:
+        """The grid of the current positions; on the fused path with its runs and sorted headings, from one launch of
+        :func:`_lane_wise_steps` without steps."""
+        if self._grid_step != self.step_index and self._fused():
+            self._fused_steps(0, 0.0)
+        super()._ensure_grid()
+
     def _ready(self) -> int:
         """What the next step finds done: 2 its neighbour sums (taken by the metrics pass), 1 the grid built for the
         current positions (a frame, metrics), 0 nothing."""
@@ -903,19 +918,22 @@ class Vicsek(GridModel):
 
     def _fused_steps(self, steps: int, inv_g: float) -> None:
         """`steps` lane-wise steps in one launch of :func:`_lane_wise_steps`, from the grid and the sums that are
-        ready for the current state (built by a frame or summed by the metrics pass)."""
+        ready for the current state (built by a frame or summed by the metrics pass), and the grid of the state they
+        make, with its runs and sorted headings."""
         p, grid = self.params, self.grid
         t0, ready = self.step_index, self._ready()
         rule, vectorial = RULES[p.rule], p.noise_type == "vectorial"
-        draw, bits, word_rank, drawn = self._draw_arguments(3, 2, made=t0 + steps)
-        _lane_wise_steps(steps, t0, ready, draw, *grid.build_arguments(), grid.run_buffer(), self.seed, p.radius,
+        drawing = self._draw_arguments(3, 2, made=t0 + steps) if steps else self._no_draw_arguments(3, 2)
+        draw, bits, word_rank, drawn = drawing
+        _lane_wise_steps(steps, t0, ready, 1, draw, *grid.build_arguments(), grid.run_buffer(), self.seed, p.radius,
                          p.speed, p.noise, math.radians(p.max_turn_deg), inv_g, rule,
                          VECTOR_COUNTED if vectorial else rule, p.leader.enabled, vectorial, p.wrap_headings,
                          self.pos, self.theta, self.trig, self.ids, self.payload, self.sums, self.turn, self.updated,
                          bits, word_rank, drawn)
-        grid.count_builds(steps - (1 if ready else 0))
+        grid.count_builds(steps + 1 - (1 if ready else 0))
         self.step_index = t0 + steps
-        self._grid_step = self.step_index - 1  # the grid holds the positions the last step started from
+        self._grid_step = self.step_index
+        self._headed = (self.step_index, grid.builds)
 
     def _topological_step(self, inv_g: float) -> None:
         """The synchronous step with the k nearest agents as neighbours: :func:`tflock.topological.find_nearest`, their
@@ -959,7 +977,8 @@ class Vicsek(GridModel):
         for that step): the headings' cos and sin in cell order, each agent's neighbour count and the clusters."""
         p, grid = self.params, self.grid
         g, boundary = grid.geometry, boundary_code(p.boundary)
-        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        if self._headed != (self.step_index, grid.builds):
+            _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
         _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
                               grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
