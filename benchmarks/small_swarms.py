@@ -4,12 +4,14 @@
 
 Each case is `tflock bench`'s workload (the model's default config at N agents, density kept; `tflock.bench.
 case_config`) with metrics every 10 steps, or a paper config. Per round, from the same state, the same steps run
-three ways, one after the other:
+four ways, one after the other:
 
 * **before**: Taichi's own kernel call path and the step loop as it was (``advance(1)`` every step, the guard and
-  the metrics at their steps), the code of main before issue 32 (the old loop is copied below);
-* **after**: tflock's kernel call path (:mod:`tflock.taichi_launch`) and ``Simulation.step`` (the steps between two
-  observations as one ``advance(k)``);
+  the metrics at their steps), the code of main before issue 32 (the old loop is copied below), and Vicsek's
+  lane-wise step as one launch per kernel (``FUSED_MAX_AGENTS = 0``);
+* **launches**: tflock's kernel call path (:mod:`tflock.taichi_launch`) and ``Simulation.step`` (the steps between
+  two observations as one ``advance(k)``), Vicsek's lane-wise step still one launch per kernel;
+* **after**: as ``launches``, with Vicsek's runs of lane-wise steps in one launch each (``_lane_wise_steps``);
 * **numpy** (at N <= 1000): the plain NumPy step of the same model (:mod:`tflock.reference`), without metrics.
 
 Prints and writes JSON: ms per step, median (min-max) over the rounds, and the ratios of the medians.
@@ -17,6 +19,7 @@ Prints and writes JSON: ms per step, median (min-max) over the rounds, and the r
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import sys
@@ -27,6 +30,7 @@ import numpy as np
 import taichi as ti
 from taichi.lang.kernel_impl import Kernel
 
+import tflock.models.vicsek as vicsek
 from tflock.bench import BenchCase, case_config, machine
 from tflock.simulation import Simulation
 
@@ -85,25 +89,31 @@ def run_case(name: str, n: int, rounds: int, steps: int) -> dict:
     sim.step(20)
     start = (sim.model.checkpoint(), sim.model.step_index)
     peer = numpy_step(sim)
-    times: dict[str, list[float]] = {"before": [], "after": [], "numpy": []}
+    fused = vicsek.FUSED_MAX_AGENTS
+    ways = ("before", "launches", "after")
+    times: dict[str, list[float]] = {"before": [], "launches": [], "after": [], "numpy": []}
     for r in range(rounds + 1):  # round 0 warms up (compiles the fused kernels, makes the call plans): not kept
-        for way in ("before", "after"):
+        for way in ways:
             sim.model.restore(*start)
             Kernel.__call__ = fast.original if way == "before" else fast
+            vicsek.FUSED_MAX_AGENTS = fused if way == "after" else 0
             step = (lambda k: old_step(sim, k)) if way == "before" else sim.step
             try:
                 times[way].append(timed(step, steps))
             finally:
                 Kernel.__call__ = fast
+                vicsek.FUSED_MAX_AGENTS = fused
         if peer is not None and r:
             times["numpy"].append(timed(lambda k: [peer() for _ in range(k)], max(1, steps // 10)))
     sim.close()
-    times["before"], times["after"] = times["before"][1:], times["after"][1:]
+    for way in ways:
+        times[way] = times[way][1:]
     out = {"case": name, "n": n, "metrics_every": sim.config.log.metrics_every}
     for way, values in times.items():
         if values:
             out[way] = {"median": statistics.median(values), "min": min(values), "max": max(values)}
     out["speedup"] = out["before"]["median"] / out["after"]["median"]
+    out["launches_over_after"] = out["launches"]["median"] / out["after"]["median"]
     if "numpy" in out:
         out["numpy_over_after"] = out["numpy"]["median"] / out["after"]["median"]
     return out
@@ -122,13 +132,16 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     rows = []
+    load = [round(v, 2) for v in os.getloadavg()]  # 1, 5 and 15 minutes
     for name, n in CASES:
         row = run_case(name, n, a.rounds, a.steps)
         rows.append(row)
-        print(f"{name} n={n}: before {_spread(row, 'before')} after {_spread(row, 'after')} ms/step, "
-              f"{row['speedup']:.2f}x; numpy {_spread(row, 'numpy')}", flush=True)
+        print(f"{name} n={n}: before {_spread(row, 'before')} launches {_spread(row, 'launches')} "
+              f"after {_spread(row, 'after')} ms/step, {row['speedup']:.2f}x, {row['launches_over_after']:.2f}x; "
+              f"numpy {_spread(row, 'numpy')}", flush=True)
     if a.out is not None:
-        payload = {"command": "python " + " ".join(sys.argv), "date": time.strftime("%Y-%m-%d"),
+        payload = {"command": "python " + " ".join(sys.argv), "date": time.strftime("%Y-%m-%d %H:%M"),
+                   "load_average": {"start": load, "end": [round(v, 2) for v in os.getloadavg()]},
                    "machine": machine(), "python": platform.python_version(), "numpy": np.__version__,
                    "results": rows}
         a.out.write_text(json.dumps(payload, indent=1) + "\n")

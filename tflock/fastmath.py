@@ -71,6 +71,16 @@ def atan2(y, x):
     return ti.select(y < 0, -a, a)
 
 
+@ti.func
+def opaque_copy(x, zero):
+    """x, bit for bit, when the integer `zero` is 0 (it must be, at run time; the compiler must not know it): x's
+    bits xor `zero`. Fast math's reassociation cannot see through it, so a sum that x ends is not regrouped with
+    the terms x is added to (LLVM groups such sums by where their terms are computed, which differs where the same
+    code is inlined into another loop)."""
+    itype = ti.i32 if ti.static(ti.lang.impl.get_runtime().default_fp == ti.f32) else ti.i64
+    return ti.bit_cast(ti.bit_cast(x, itype) ^ ti.cast(zero, itype), ti.lang.impl.get_runtime().default_fp)
+
+
 @ti.kernel
 def cos_sin(n: ti.i32, theta: ti.types.ndarray(), trig: ti.types.ndarray()):
     """trig[0] = cos theta, trig[1] = sin theta for n headings, by :func:`sin_cos`. The Vicsek and formation steps

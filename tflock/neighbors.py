@@ -263,15 +263,16 @@ def _cell_and_bucket(p, i, per_replica, bounds: ti.template(), anchor: ti.templa
     return c, bucket_of_cell(c, nc, n_buckets, boundary, dim)
 
 
-@ti.kernel
-def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_replica: ti.i32, box: float,
-           cell_size: float, nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(),
-           dim: ti.template(),
-           coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
-           start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
-           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
-           anchor: ti.types.ndarray(), by_rank: ti.template()):
+@ti.func
+def build_grid(pos: ti.template(), ids: ti.template(), n, per_replica, box, cell_size, nc, n_buckets, total_buckets,
+               boundary: ti.template(), dim: ti.template(), coords: ti.template(), bucket: ti.template(),
+               counts: ti.template(), start: ti.template(), order: ti.template(), slot_of: ti.template(),
+               pos_sorted: ti.template(), coords_sorted: ti.template(), id_sorted: ti.template(),
+               mixed: ti.template(), block_start: ti.template(), bounds: ti.template(), anchor: ti.template(),
+               by_rank: ti.template()):
+    """One build of the grid (see :meth:`CellGrid.build`, which launches it as :func:`_build`; a model's kernel may
+    call it inside its own loop over steps, see :meth:`CellGrid.build_arguments`): count agents per bucket, scan
+    the counts, scatter, put each bucket's agents in id order, gather the sorted arrays."""
     for b in range(total_buckets):
         counts[b] = 0
     for e in range(n):
@@ -349,6 +350,20 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
             mixed[b] = flag
 
 
+@ti.kernel
+def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_replica: ti.i32, box: float,
+           cell_size: float, nc: ti.i32, n_buckets: ti.i32, total_buckets: ti.i32, boundary: ti.template(),
+           dim: ti.template(),
+           coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
+           start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
+           pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+           mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
+           anchor: ti.types.ndarray(), by_rank: ti.template()):
+    build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords, bucket,
+               counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed, block_start, bounds,
+               anchor, by_rank)
+
+
 @ti.func
 def _window_cell(p, anchor, box, cell_size, layout: ti.template()):
     """Cell of p before a bounded (open space) or window (periodic box) grid's origin is subtracted."""
@@ -389,10 +404,10 @@ def _cell_bounds(n: ti.i32, dim: ti.template(), box: float, cell_size: float, la
         bounds[1, d] = hi
 
 
-@ti.kernel
-def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
-    """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`): one pass along each
-    row, a cell joining the open run while the agents fit in the lanes."""
+@ti.func
+def cut_runs(rows, nc, start: ti.template(), run_end: ti.template()):
+    """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`, which launches it as
+    :func:`_runs`): one pass along each row, a cell joining the open run while the agents fit in the lanes."""
     for row in range(rows):
         base = row * nc
         if start[base] == start[base + nc]:  # an empty row (most of a sparse swarm's tiling): no run starts
@@ -425,6 +440,11 @@ def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types
                 agents = here
         if begin >= 0:
             run_end[base + begin] = nc
+
+
+@ti.kernel
+def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
+    cut_runs(rows, nc, start, run_end)
 
 
 @ti.func
@@ -605,13 +625,25 @@ class CellGrid:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
         if self.bounded:
             self.geometry = self._layout(pos)
-        g = self.geometry
-        _build(pos, ids, self.n, g.agents_per_replica, self.box, g.cell_size, g.cells_per_side, g.n_buckets,
-               g.total_buckets, g.boundary, g.dim,
-               self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
-               self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
-               self.anchor, self.rank_sort)
+        _build(pos, ids, *self.build_arguments())
         self.builds += 1
+
+    def build_arguments(self) -> tuple:
+        """The arguments of :func:`build_grid` after `pos` and `ids`, for the current layout: for a model's kernel
+        that builds the grid itself, inside its own loop over steps (then :meth:`count_builds` says so)."""
+        g = self.geometry
+        return (self.n, g.agents_per_replica, self.box, g.cell_size, g.cells_per_side, g.n_buckets, g.total_buckets,
+                g.boundary, g.dim, self.coords, self.bucket, self.counts, self.start, self.order, self.slot_of,
+                self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
+                self.anchor, self.rank_sort)
+
+    def count_builds(self, builds: int) -> None:
+        """Count `builds` builds a model's kernel made with :func:`build_grid` (a grid of fixed layout), each followed
+        by :func:`cut_runs` into :meth:`run_buffer`: the runs there are the last build's."""
+        if self.bounded:
+            raise ValueError("a bounded grid's layout is chosen on the host at each build")
+        self.builds += builds
+        self._runs_build = self.builds
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
         """A bounded grid's layout for these positions: side-R cells over the cube on their bounding box (open
@@ -656,10 +688,14 @@ class CellGrid:
         if g.boundary == OPEN:
             raise ValueError("runs need a box or bounded grid (this build hashed its cells)")
         if self._runs_build != self.builds:
-            if self.run_end is None:
-                self.run_end = ti.ndarray(ti.i32, self.counts.shape[0])
-            _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_end)
+            _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_buffer())
             self._runs_build = self.builds
+        return self.run_end
+
+    def run_buffer(self) -> ti.Ndarray:
+        """``run_end``, allocated on first use, whatever build's runs it holds (see :meth:`runs`)."""
+        if self.run_end is None:
+            self.run_end = ti.ndarray(ti.i32, self.counts.shape[0])
         return self.run_end
 
 

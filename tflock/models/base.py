@@ -193,17 +193,23 @@ class GridModel(Model):
         (see :meth:`_draw_arguments`); the frame then needs no pass of its own."""
         self._announced = (self.step_index + 1, self._subset(selected))
 
-    def _draw_arguments(self, layers: int, width: int) -> tuple:
-        """``(draw, bits, word_rank, rows)`` for a step kernel about to make the state a frame was announced for:
-        draw = True and fresh rows (layers, M, width) for it to write, which :meth:`_rows_written` then returns; else
-        draw = False and unused arrays (a kernel may take draw as an i32 or as a template)."""
+    def _draw_arguments(self, layers: int, width: int, made: int | None = None) -> tuple:
+        """``(draw, bits, word_rank, rows)`` for a step kernel about to make the state of step `made` (default: the
+        next step), if a frame was announced for it: draw = True and fresh rows (layers, M, width) for it to write,
+        which :meth:`_rows_written` then returns; else draw = False and unused arrays (a kernel may take draw as an
+        i32 or as a template)."""
         announced = self._announced
-        if announced is not None and announced[0] == self.step_index + 1 and len(announced[1].selected_ids):
+        made = self.step_index + 1 if made is None else made
+        if announced is not None and announced[0] == made and len(announced[1].selected_ids):
             drawing = announced[1]
             rows = np.empty((layers, len(drawing.selected_ids), width), dtype=self.grid.real)
-            self._drawn = (self.step_index + 1, drawing, rows)
+            self._drawn = (made, drawing, rows)
             return True, drawing.bits, drawing.word_rank, rows
         self._drawn = None
+        return self._no_draw_arguments(layers, width)
+
+    def _no_draw_arguments(self, layers: int, width: int) -> tuple:
+        """:meth:`_draw_arguments` of a step kernel that writes no frame rows (draw = False, unused arrays)."""
         if self._no_draw is None or self._no_draw[2].shape != (layers, 1, width):
             self._no_draw = (ti.ndarray(ti.u32, 1), ti.ndarray(ti.i32, 1),
                              np.zeros((layers, 1, width), dtype=self.grid.real))

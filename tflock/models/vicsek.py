@@ -40,7 +40,7 @@ import taichi as ti
 
 from tflock.config import VicsekParams
 from tflock.engine import EngineInfo
-from tflock.fastmath import atan2, cos_sin, sin_cos
+from tflock.fastmath import atan2, cos_sin, opaque_copy, sin_cos
 from tflock.field import ANGLES, UNIT_VECTORS
 from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
 from tflock.lane_graph import (
@@ -68,6 +68,8 @@ from tflock.models.base import GridModel
 from tflock.neighbors import (
     LANES,
     CellGrid,
+    build_grid,
+    cut_runs,
     drawn_rank,
     lanes,
     load_cell,
@@ -105,6 +107,9 @@ RULES = {"vector": 0, "average": 1, "relative": 2, "laplacian": 3}
 VECTOR, AVERAGE, RELATIVE, LAPLACIAN = 0, 1, 2, 3
 #: what :func:`_neighbour_sums` computes for the vector rule with vectorial noise: the vector sums and the count
 VECTOR_COUNTED = 4
+#: the lane-wise step runs all the steps between two observations in one launch (:func:`_lane_wise_steps`, on one
+#: thread) up to this many agents (replicas together), where launches cost more than the arithmetic
+FUSED_MAX_AGENTS = 4096
 TWO_PI = 2 * math.pi
 
 
@@ -247,15 +252,21 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
 # at once, and the per-agent update runs UPDATE_WIDTH agents at a time with polynomial trigonometry (tflock.fastmath).
 
 
-@ti.kernel
-def _headings(n: ti.i32, order: ti.types.ndarray(), theta: ti.types.ndarray(), trig: ti.types.ndarray(),
-              payload: ti.types.ndarray()):
+@ti.func
+def _sorted_headings(n, order: ti.template(), theta: ti.template(), trig: ti.template(), payload: ti.template()):
     """payload = (cos, sin, theta) of the agents in cell order (``trig`` holds cos and sin of ``theta``)."""
     for s in range(n):
         e = order[s]
         payload[0, s] = trig[0, e]
         payload[1, s] = trig[1, e]
         payload[2, s] = theta[e]
+
+
+@ti.kernel
+def _headings(n: ti.i32, order: ti.types.ndarray(), theta: ti.types.ndarray(), trig: ti.types.ndarray(),
+              payload: ti.types.ndarray()):
+    """:func:`_sorted_headings` as a launch of its own."""
+    _sorted_headings(n, order, theta, trig, payload)
 
 
 @ti.func
@@ -284,10 +295,9 @@ def _accumulate(begin, end, px, py, th, acc_a, acc_b, count, r2, box, pos_sorted
     return acc_a, acc_b, count
 
 
-@ti.kernel
-def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float, rule: ti.template(),
-                    boundary: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
-                    pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(), sums: ti.types.ndarray()):
+@ti.func
+def _lane_sums(total_buckets, nc, radius, box, rule: ti.template(), boundary: ti.template(), start: ti.template(),
+               run_end: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template()):
     """Per agent (cell order), over N_i and i itself: the rule's sums (``vector``: sum cos, sum sin; ``relative``:
     sum wrap(theta_j - theta_i); others: sum theta_j) and, except for ``vector``, the count 1 + n_i
     (``VECTOR_COUNTED``: the vector rule's sums and the count)."""
@@ -319,6 +329,14 @@ def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float
                     sums[0, i0 + k] = acc_a[k]
                     sums[1, i0 + k] = acc_b[k]
                     sums[2, i0 + k] = count[k]
+
+
+@ti.kernel
+def _neighbour_sums(total_buckets: ti.i32, nc: ti.i32, radius: float, box: float, rule: ti.template(),
+                    boundary: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                    pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(), sums: ti.types.ndarray()):
+    """:func:`_lane_sums` as a launch of its own."""
+    _lane_sums(total_buckets, nc, radius, box, rule, boundary, start, run_end, pos_sorted, payload, sums)
 
 
 @ti.kernel
@@ -517,12 +535,19 @@ def _update_lanes(i0, last, tail: ti.template(), t, seed, per_replica, speed, no
         phi = acc_a / count
     else:
         phi = inv_g * (acc_a - count * th)
-    new = th + ti.math.clamp(phi, -max_turn, max_turn) + xi
-    if ti.static(wrap):
-        new = wrap_two_pi(new)
     update = local >= 0  # synchronous: every agent updates
     if ti.static(leader):
         update = local != 0  # the leader keeps theta0 (Jadbabaie eq. 22)
+    # (th + turn) + xi, grouped so: fast math may regroup a sum of three terms, and did so differently where this
+    # body is inlined into a loop over steps (_lane_wise_steps); local >= 0, so `opaque` is 0 (unknown to LLVM)
+    opaque = ti.select(local < 0, 1, 0)
+    new = th + ti.math.clamp(phi, -max_turn, max_turn)
+    for k in ti.static(range(width)):
+        new[k] = opaque_copy(new[k], opaque[k])
+    new += xi
+    if ti.static(wrap):
+        new = wrap_two_pi(new)
+    if ti.static(leader):
         new = ti.select(update, new, th)
     sin_new, cos_new = sin_cos(new)
     qx = ti.Vector([pos_sorted[0, at[k]] for k in ti.static(range(width))]) + speed * cos_new
@@ -560,15 +585,13 @@ def _update_lanes(i0, last, tail: ti.template(), t, seed, per_replica, speed, no
                 drawn[2, r, 1] = ti.select(update[k], 1.0, 0.0)
 
 
-@ti.kernel
-def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
-            max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
-            vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
-            pos_sorted: ti.types.ndarray(),
-            payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
-            theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
-            updated: ti.types.ndarray(), draw: ti.i32, bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
-            drawn: ti.types.ndarray()):
+@ti.func
+def _update_all(n, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule: ti.template(),
+                boundary: ti.template(), leader: ti.template(), vectorial: ti.template(), wrap: ti.template(),
+                id_sorted: ti.template(), pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(),
+                pos: ti.template(), theta: ti.template(), trig: ti.template(), ids: ti.template(),
+                turn: ti.template(), updated: ti.template(), draw, bits: ti.template(), word_rank: ti.template(),
+                drawn: ti.template()):
     """New headings and positions, written at each agent's slot (the arrangement becomes this step's cell order);
     with `draw`, also the frame rows of the drawn agents (``drawn``, one row per agent in id order)."""
     for b in range(n // UPDATE_WIDTH):
@@ -579,6 +602,62 @@ def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: floa
         _update_lanes(n // UPDATE_WIDTH * UPDATE_WIDTH + b, n - 1, True, t, seed, per_replica, speed, noise, box,
                       max_turn, inv_g, rule, boundary, leader, vectorial, wrap, id_sorted, pos_sorted,
                       payload, sums, pos, theta, trig, ids, turn, updated, draw, bits, word_rank, drawn)
+
+
+@ti.kernel
+def _update(n: ti.i32, t: ti.i32, seed: ti.u32, per_replica: ti.i32, speed: float, noise: float, box: float,
+            max_turn: float, inv_g: float, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
+            vectorial: ti.template(), wrap: ti.template(), id_sorted: ti.types.ndarray(),
+            pos_sorted: ti.types.ndarray(),
+            payload: ti.types.ndarray(), sums: ti.types.ndarray(), pos: ti.types.ndarray(),
+            theta: ti.types.ndarray(), trig: ti.types.ndarray(), ids: ti.types.ndarray(), turn: ti.types.ndarray(),
+            updated: ti.types.ndarray(), draw: ti.i32, bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
+            drawn: ti.types.ndarray()):
+    """:func:`_update_all` as a launch of its own."""
+    _update_all(n, t, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader, vectorial, wrap,
+                id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated, draw, bits, word_rank,
+                drawn)
+
+
+@ti.kernel
+def _lane_wise_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, finish: ti.i32, draw: ti.i32,
+                     n: ti.i32, per_replica: ti.i32, box: float, cell_size: float, nc: ti.i32, n_buckets: ti.i32,
+                     total_buckets: ti.i32, boundary: ti.template(), dim: ti.template(),
+                     coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
+                     start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
+                     pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                     id_sorted: ti.types.ndarray(), mixed: ti.types.ndarray(), block_start: ti.types.ndarray(),
+                     bounds: ti.types.ndarray(), anchor: ti.types.ndarray(), by_rank: ti.template(),
+                     run_end: ti.types.ndarray(), seed: ti.u32, radius: float, speed: float, noise: float,
+                     max_turn: float, inv_g: float, rule: ti.template(), summed_rule: ti.template(),
+                     leader: ti.template(), vectorial: ti.template(), wrap: ti.template(),
+                     pos: ti.types.ndarray(), theta: ti.types.ndarray(), trig: ti.types.ndarray(),
+                     ids: ti.types.ndarray(), payload: ti.types.ndarray(), sums: ti.types.ndarray(),
+                     turn: ti.types.ndarray(), updated: ti.types.ndarray(), bits: ti.types.ndarray(),
+                     word_rank: ti.types.ndarray(), drawn: ti.types.ndarray()):
+    """`steps` lane-wise synchronous steps t0 .. t0 + steps - 1 in one launch, on one thread: each the grid build
+    (:func:`tflock.neighbors.build_grid`, :func:`tflock.neighbors.cut_runs`), :func:`_sorted_headings`,
+    :func:`_lane_sums` and :func:`_update_all`, the bodies of the step's own launches, so every step computes what
+    they compute, bit for bit. For the first step, `ready` says what is done already: 1 the grid is built for the
+    current positions, 2 its neighbour sums are taken too (by the metrics pass); 0 nothing. With `finish`, the
+    launch then builds the grid of the state it made, its runs and sorted headings (what the metrics pass and a
+    frame read; steps = 0: only that). With `draw`, the last step writes the drawn agents' frame rows."""
+    ti.loop_config(serialize=True)
+    for step in range(steps + finish):
+        if step > 0 or ready == 0:
+            build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords,
+                       bucket, counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
+                       block_start, bounds, anchor, by_rank)
+        if step > 0 or ready < 2:
+            cut_runs(total_buckets // nc, nc, start, run_end)
+            _sorted_headings(n, order, theta, trig, payload)
+            if step < steps:
+                _lane_sums(total_buckets, nc, radius, box, summed_rule, boundary, start, run_end, pos_sorted,
+                           payload, sums)
+        if step < steps:
+            _update_all(n, t0 + step, seed, per_replica, speed, noise, box, max_turn, inv_g, rule, boundary, leader,
+                        vectorial, wrap, id_sorted, pos_sorted, payload, sums, pos, theta, trig, ids, turn, updated,
+                        ti.select(step == steps - 1, draw, 0), bits, word_rank, drawn)
 
 
 @ti.kernel
@@ -647,6 +726,8 @@ class Vicsek(GridModel):
     #: (step, grid build) whose neighbour sums metrics() already computed for the next step (a tuple, which
     #: checkpoint() leaves out)
     _summed: tuple[int, int] | None = None
+    #: (step, grid build) whose sorted headings ``payload`` holds, where the fused launch wrote them
+    _headed: tuple[int, int] | None = None
 
     @classmethod
     def can_batch(cls, params: VicsekParams) -> bool:
@@ -781,9 +862,15 @@ class Vicsek(GridModel):
         return mask
 
     def advance(self, steps: int) -> None:
+        """Run `steps` steps: the lane-wise step of at most :data:`FUSED_MAX_AGENTS` agents all in one launch
+        (:func:`_lane_wise_steps`, which also builds the grid of the state it makes), else one step (a few launches)
+        at a time."""
         p = self.params
         g = self.grid.geometry
         inv_g = 1.0 / p.g if p.rule == "laplacian" else 0.0
+        if steps > 0 and self._fused():
+            self._fused_steps(steps, inv_g)
+            return
         for _ in range(steps):
             self._ensure_grid()
             if self.topological:
@@ -813,6 +900,43 @@ class Vicsek(GridModel):
                 grid.id_sorted, grid.pos_sorted,
                 self.payload, self.sums, self.pos, self.theta, self.trig, self.ids, self.turn, self.updated,
                 *self._draw_arguments(3, 2))
+
+    def _fused(self) -> bool:
+        """Whether steps, and the grid builds between them, run in :func:`_lane_wise_steps`."""
+        return self.lane_wise and self.n_total <= FUSED_MAX_AGENTS
+
+    def _ensure_grid(self) -> None:
+        """The grid of the current positions; on the fused path with its runs and sorted headings, from one launch of
+        :func:`_lane_wise_steps` without steps."""
+        if self._grid_step != self.step_index and self._fused():
+            self._fused_steps(0, 0.0)
+        super()._ensure_grid()
+
+    def _ready(self) -> int:
+        """What the next step finds done: 2 its neighbour sums (taken by the metrics pass), 1 the grid built for the
+        current positions (a frame, metrics), 0 nothing."""
+        if self._grid_step != self.step_index:
+            return 0
+        return 2 if self._summed == (self.step_index, self.grid.builds) else 1
+
+    def _fused_steps(self, steps: int, inv_g: float) -> None:
+        """`steps` lane-wise steps in one launch of :func:`_lane_wise_steps`, from the grid and the sums that are
+        ready for the current state (built by a frame or summed by the metrics pass), and the grid of the state they
+        make, with its runs and sorted headings."""
+        p, grid = self.params, self.grid
+        t0, ready = self.step_index, self._ready()
+        rule, vectorial = RULES[p.rule], p.noise_type == "vectorial"
+        drawing = self._draw_arguments(3, 2, made=t0 + steps) if steps else self._no_draw_arguments(3, 2)
+        draw, bits, word_rank, drawn = drawing
+        _lane_wise_steps(steps, t0, ready, 1, draw, *grid.build_arguments(), grid.run_buffer(), self.seed, p.radius,
+                         p.speed, p.noise, math.radians(p.max_turn_deg), inv_g, rule,
+                         VECTOR_COUNTED if vectorial else rule, p.leader.enabled, vectorial, p.wrap_headings,
+                         self.pos, self.theta, self.trig, self.ids, self.payload, self.sums, self.turn, self.updated,
+                         bits, word_rank, drawn)
+        grid.count_builds(steps + 1 - (1 if ready else 0))
+        self.step_index = t0 + steps
+        self._grid_step = self.step_index
+        self._headed = (self.step_index, grid.builds)
 
     def _topological_step(self, inv_g: float) -> None:
         """The synchronous step with the k nearest agents as neighbours: :func:`tflock.topological.find_nearest`, their
@@ -874,7 +998,8 @@ class Vicsek(GridModel):
         for that step): the headings' cos and sin in cell order, each agent's neighbour count and the clusters."""
         p, grid = self.params, self.grid
         g, boundary = grid.geometry, boundary_code(p.boundary)
-        _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        if self._headed != (self.step_index, grid.builds):
+            _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
         _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
                               grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
