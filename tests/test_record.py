@@ -270,6 +270,39 @@ def test_gathered_frames_hold_what_frames_logged_one_by_one_hold(tmp_path: Path,
     assert summary.steps == list(range(STEPS))
 
 
+@pytest.mark.parametrize("model, params", [
+    ("vicsek", {"n": 60, "box": 5.0}),
+    ("vicsek", {"n": 60, "box": 5.0, "async_bound": 3}),
+    ("potential", {"n": 40}),
+    ("formation", {}),
+    ("adaptive", {"n": 60, "dim": 3, "box": 4.0}),
+])
+def test_every_model_records_the_same_frames_gathered(tmp_path: Path, monkeypatch, cpu_engine, model: str,
+                                                      params: dict) -> None:
+    """The models' own frames (arrays a step may write in place, host views) recorded through the gathered
+    columns hold, at every step, what logging each frame at once holds: no frame's arrays change after it is
+    handed over."""
+    import tflock
+    import tflock.record as record
+
+    def run(path: Path, gather: int) -> None:
+        monkeypatch.setattr(record, "GATHER_AGENTS", gather)
+        sim = tflock.Simulation(model=model, params=params, steps=12, log={"every": 1}, record=path,
+                                engine={"precision": cpu_engine.precision})
+        sim.run()
+        sim.close()
+
+    run(tmp_path / "one-by-one.rrd", 0)
+    run(tmp_path / "gathered.rrd", 10**6)
+    one, gathered = _frame_rows(tmp_path / "one-by-one.rrd"), _frame_rows(tmp_path / "gathered.rrd")
+    per_step = {k: v for k, v in one.items() if not k[2].endswith(("radii", "draw_order"))
+                and not (k[0] == "/world/edges" and k[2].endswith("colors"))}
+    assert per_step and all(gathered.get(k) == v for k, v in per_step.items())
+    positions = [one[("/world/agents", t, n)] for (e, t, n) in sorted(one) if e == "/world/agents"
+                 and n.endswith("positions")]
+    assert len(positions) == 13 and positions[0] != positions[-1]
+
+
 CHILD = textwrap.dedent(
     """
     import signal, sys
