@@ -809,8 +809,7 @@ class Vicsek(GridModel):
         self._grid_step = -1  # step whose positions the grid holds
         self._leader_id = ti.ndarray(ti.i32, 1)  # agent 0
         self._leader_id.fill(0)
-        self._states = 0  # states set so far (see _state_key)
-        self._measured: tuple[tuple[int, int, int], float] | None = None  # the last metrics' state, mean heading
+        self._measured: tuple[tuple[int, int], float] | None = None  # the last metrics' state, mean heading
         draws = [initial_state(params, seed + r) for r in range(replicas)]
         self.set_state({k: np.concatenate([d[k] for d in draws]) for k in draws[0]}, 0)
 
@@ -826,7 +825,6 @@ class Vicsek(GridModel):
         if self.lane_wise or self.topological:
             cos_sin(self.n_total, self.theta, self.trig)
         self.ids.from_numpy(np.arange(self.n_total, dtype=np.int32))
-        self._states += 1
         self.turn.fill(0)
         self.updated.fill(0)
         if self.asynchronous:
@@ -977,10 +975,10 @@ class Vicsek(GridModel):
                     self.observables.compute(self.pos, self.ids, heading, self._measured[0]).items()})
         return {name: out[name] for name in self.metric_descriptions}
 
-    def _state_key(self) -> tuple[int, int, int]:
-        """Names the current state for what metrics and a frame of the same step share: the step, the grid build
-        and the states set."""
-        return self.step_index, self.grid.builds, self._states
+    def _state_key(self) -> tuple[int, int]:
+        """Names the current state for what metrics and a frame of the same step share, as ``_summed`` does: the
+        step and the grid build (both callers build the grid first, and a state set anew is a new build)."""
+        return self.step_index, self.grid.builds
 
     def _mean_heading(self) -> float:
         """The circular mean heading of the current state: the one :meth:`metrics` found at this state, or from the
