@@ -51,7 +51,6 @@ class _Gathered(NamedTuple):
     colors: np.ndarray  # (m,) packed RGBA
     vectors: np.ndarray  # (m, dim) f32
     strips: pa.ListArray | None  # the edges, None where the frame draws none
-    strip_count: int
     profiles: dict[str, np.ndarray]  # bar chart values (f32)
 
 
@@ -68,7 +67,7 @@ class FrameColumns:
         self._first = True  # the first frame goes at once: a viewer shows the run from its start
 
     def add(self, step: int, positions: np.ndarray, colors: np.ndarray, vectors: np.ndarray,
-            strips: pa.ListArray | None, strip_count: int, profiles: dict[str, np.ndarray]) -> None:
+            strips: pa.ListArray | None, profiles: dict[str, np.ndarray]) -> None:
         """Keep one frame (`strips`: its edges, None where the frame draws none); sent when due. The frame joins
         the others in one list append, so an interrupt (Ctrl-C) leaves it either kept whole or not at all."""
         bars = {name: np.asarray(values, dtype=np.float32) for name, values in profiles.items()}
@@ -78,8 +77,7 @@ class FrameColumns:
             self.send()  # a send left unfinished, or another set of bar charts: the gathered frames go first
         if not self._gathered:
             self._since = time.monotonic()
-        self._gathered.append(_Gathered(int(step), positions, colors, vectors, strips,
-                                        strip_count if strips is not None else 0, bars))
+        self._gathered.append(_Gathered(int(step), positions, colors, vectors, strips, bars))
         if self._first or len(self._gathered) >= GATHER_FRAMES or time.monotonic() - self._since >= GATHER_S:
             self._first = False
             self.send()
@@ -107,7 +105,7 @@ class FrameColumns:
         drawn = [f.strips for f in frames if f.strips is not None]
         if drawn:
             columns[edges] = lambda: Strips.columns(strips=pa.concat_arrays(drawn)).partition(
-                [f.strip_count for f in frames])
+                [0 if f.strips is None else len(f.strips) for f in frames])
         for name in frames[0].profiles:
             columns[f"{profiles}/{name}"] = lambda name=name: rr.BarChart.columns(
                 values=bar_chart_rows(np.stack([f.profiles[name] for f in frames])))

@@ -103,7 +103,7 @@ def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
         return None
     replica = host_view(ids)[:n] // per_replica if replicas > 1 else np.zeros(n, dtype=np.int64)
     with np.errstate(invalid="ignore"):  # a non-finite coordinate counts in the first box, as in the kernels
-        cells = np.clip(np.trunc(x[:, :n] * x.dtype.type(scale)).astype(np.int64), 0, per_side - 1)
+        cells = np.clip((x[:, :n] * x.dtype.type(scale)).astype(np.int64), 0, per_side - 1)  # truncated
     if axes is None:
         index = np.zeros(n, dtype=np.int64)
         for a in range(x.shape[0] - 1, -1, -1):  # row-major, the last axis slowest

@@ -669,7 +669,7 @@ class Recorder:
         for image in frame.fields:
             self._log_field(image)
         if gather:
-            self._frames.add(step, pos, colors, vectors, strips, 0 if edges is None else len(edges), frame.profiles)
+            self._frames.add(step, pos, colors, vectors, strips, frame.profiles)
         else:
             for name, values in frame.profiles.items():
                 rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
