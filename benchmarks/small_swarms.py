@@ -7,11 +7,12 @@ case_config`) with metrics every 10 steps, or a paper config. Per round, from th
 four ways, one after the other:
 
 * **before**: Taichi's own kernel call path and the step loop as it was (``advance(1)`` every step, the guard and
-  the metrics at their steps), the code of main before issue 32 (the old loop is copied below), and Vicsek's
-  lane-wise step as one launch per kernel (``FUSED_MAX_AGENTS = 0``);
+  the metrics at their steps), the code of main before issue 32 (the old loop is copied below), and the lane-wise
+  steps as one launch per kernel (``vicsek.FUSED_MAX_AGENTS = potential.FUSED_MAX_N = 0``);
 * **launches**: tflock's kernel call path (:mod:`tflock.taichi_launch`) and ``Simulation.step`` (the steps between
-  two observations as one ``advance(k)``), Vicsek's lane-wise step still one launch per kernel;
-* **after**: as ``launches``, with Vicsek's runs of lane-wise steps in one launch each (``_lane_wise_steps``);
+  two observations as one ``advance(k)``), each step still its own launches (a fixed graph's too);
+* **after**: as ``launches``, with runs of steps in one launch each (Vicsek's ``_lane_wise_steps``, potential's
+  ``_lane_steps`` and, on a fixed graph, ``_steps_fixed``);
 * **numpy** (at N <= 1000): the plain NumPy step of the same model (:mod:`tflock.reference`), without metrics.
 
 Prints and writes JSON: ms per step, median (min-max) over the rounds, and the ratios of the medians.
@@ -30,6 +31,7 @@ import numpy as np
 import taichi as ti
 from taichi.lang.kernel_impl import Kernel
 
+import tflock.models.potential as potential
 import tflock.models.vicsek as vicsek
 from tflock.bench import BenchCase, case_config, machine
 from tflock.simulation import Simulation
@@ -89,20 +91,20 @@ def run_case(name: str, n: int, rounds: int, steps: int) -> dict:
     sim.step(20)
     start = (sim.model.checkpoint(), sim.model.step_index)
     peer = numpy_step(sim)
-    fused = vicsek.FUSED_MAX_AGENTS
+    fused = vicsek.FUSED_MAX_AGENTS, potential.FUSED_MAX_N
     ways = ("before", "launches", "after")
     times: dict[str, list[float]] = {"before": [], "launches": [], "after": [], "numpy": []}
     for r in range(rounds + 1):  # round 0 warms up (compiles the fused kernels, makes the call plans): not kept
         for way in ways:
             sim.model.restore(*start)
             Kernel.__call__ = fast.original if way == "before" else fast
-            vicsek.FUSED_MAX_AGENTS = fused if way == "after" else 0
+            vicsek.FUSED_MAX_AGENTS, potential.FUSED_MAX_N = fused if way == "after" else (0, 0)
             step = (lambda k: old_step(sim, k)) if way == "before" else sim.step
             try:
                 times[way].append(timed(step, steps))
             finally:
                 Kernel.__call__ = fast
-                vicsek.FUSED_MAX_AGENTS = fused
+                vicsek.FUSED_MAX_AGENTS, potential.FUSED_MAX_N = fused
         if peer is not None and r:
             times["numpy"].append(timed(lambda k: [peer() for _ in range(k)], max(1, steps // 10)))
     sim.close()

@@ -64,6 +64,25 @@ def test_step_by_step_api_and_run_agree(make_sim):
     assert_same_run(looped, whole)
 
 
+def assert_same_announced_frame(monkeypatch, threshold: tuple, single, fused, n: int) -> None:
+    """A frame announced for a step that finds nothing done (its rows written by the step), of a model stepped one
+    launch a step (the module's fused-loop `threshold` patched to 0) and of one stepped in a run: the same frame."""
+    selected = np.arange(0, n, 3)
+    with monkeypatch.context() as m:
+        m.setattr(*threshold, 0)
+        for _ in range(3):
+            single.advance(1)
+        single.draw_next(selected)
+        single.advance(1)
+        a = single.frame(selected, 0)
+    fused.advance(3)
+    fused.draw_next(selected)
+    fused.advance(1)
+    b = fused.frame(selected, 0)
+    for name in ("positions", "directions", "colors", "ids"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
 VICSEK_FUSED = [
     {"n": 100, "box": 7.0, "noise": 0.4, "max_turn_deg": 30.0},
     {"n": 61, "box": 6.0, "boundary": "reflecting", "noise_type": "vectorial", "leader": {"enabled": True}},
@@ -102,18 +121,44 @@ def test_vicsek_fused_steps_match_single_launches(engine, monkeypatch, params):
                 assert np.array_equal(getattr(single, name).to_numpy(), getattr(fused, name).to_numpy()), (steps, name)
             for key in a:
                 assert np.array_equal(a[key], b[key]), (steps, key)
-        if replicas == 1:  # a frame announced for a step that finds nothing done: its rows written by the step
-            selected = np.arange(0, cfg.params.n, 3)
-            with monkeypatch.context() as m:
-                m.setattr(vicsek, "FUSED_MAX_AGENTS", 0)
-                for _ in range(3):
-                    single.advance(1)
-                single.draw_next(selected)
+        if replicas == 1:
+            assert_same_announced_frame(monkeypatch, (vicsek, "FUSED_MAX_AGENTS"), single, fused, cfg.params.n)
+
+
+POTENTIAL_FUSED = [
+    {"n": 60, "box": 8.0},
+    {"n": 40, "box": 5.0, "dim": 3},
+    {"n": 10, "box": 5.0, "dim": 3},  # spreads beyond the bounded grid's 3 cells a side: the host's hashed steps
+]
+
+
+@pytest.mark.parametrize("params", POTENTIAL_FUSED)
+def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params):
+    """The switching topology's lane-wise step run k steps a launch (_lane_steps) against its launches of one step
+    each (FUSED_MAX_N = 0): the same state, cell order and metrics bit for bit, with metrics (whose pass sums the
+    next step's accelerations) between runs of 1-30 steps, through a swarm that outgrows the bounded grid (the launch
+    stops there and the host's steps take over); and a frame's rows, which the launch writes."""
+    import tflock.models.potential as potential
+
+    overrides = {f"params.{k}": v for k, v in params.items()}
+    overrides.update({"seed": 3, "engine.precision": PRECISION})
+    cfg = load_config(model="potential", overrides=overrides)
+    single = potential.Potential(cfg.params, cfg.seed, engine)
+    fused = potential.Potential(cfg.params, cfg.seed, engine)
+    assert fused.lane_wise and cfg.params.n <= potential.FUSED_MAX_N
+    stopped = []
+    for steps in (1, 7, 2, 30, 5, 30):
+        with monkeypatch.context() as m:
+            m.setattr(potential, "FUSED_MAX_N", 0)
+            for _ in range(steps):
                 single.advance(1)
-                a = single.frame(selected, 0)
-            fused.advance(3)
-            fused.draw_next(selected)
-            fused.advance(1)
-            b = fused.frame(selected, 0)
-            for name in ("positions", "directions", "colors", "ids"):
-                assert np.array_equal(getattr(a, name), getattr(b, name)), name
+            a = single.metrics()
+        fused.advance(steps)
+        stopped.append(int(fused._fused_done.to_numpy()[0]) < steps)
+        b = fused.metrics()
+        for name in ("pos", "vel", "ids", "scratch"):
+            assert np.array_equal(getattr(single, name).to_numpy(), getattr(fused, name).to_numpy()), (steps, name)
+        for key in a:
+            assert np.array_equal(a[key], b[key]), (steps, key)
+    assert any(stopped) == (cfg.params.n == 10), stopped
+    assert_same_announced_frame(monkeypatch, (potential, "FUSED_MAX_N"), single, fused, cfg.params.n)

@@ -405,6 +405,28 @@ def _cell_bounds(n: ti.i32, dim: ti.template(), box: float, cell_size: float, la
 
 
 @ti.func
+def bounded_layout(n, dim: ti.template(), cell_size, max_side, pos: ti.template(), bounds: ti.template()):
+    """The bounded open-space layout of n agents' positions, found on one thread inside a model's kernel as
+    :meth:`CellGrid._layout` finds it: the bounding box of their cells floor(p / R) into `bounds` (bounds[0], the
+    lowest cell, is the grid's origin for :func:`build_grid`) and its cells a side, or 0 where the box is more than
+    `max_side` cells a side (the layout then falls back to the hash, which such a kernel does not build)."""
+    first = load_vec(pos, 0, dim)
+    lo = _window_cell(first, first, 0.0, cell_size, BOUNDED)
+    hi = lo
+    for e in range(1, n):
+        c = _window_cell(load_vec(pos, e, dim), first, 0.0, cell_size, BOUNDED)
+        lo = ti.min(lo, c)
+        hi = ti.max(hi, c)
+    side = ti.i64(0)
+    for d in ti.static(range(dim)):
+        bounds[0, d] = lo[d]
+        bounds[1, d] = hi[d]
+        side = ti.max(side, ti.cast(hi[d], ti.i64) - ti.cast(lo[d], ti.i64) + 1)
+    fits = (side >= 1) & (side <= max_side)
+    return ti.select(fits, ti.cast(side, ti.i32), 0)
+
+
+@ti.func
 def cut_runs(rows, nc, start: ti.template(), run_end: ti.template()):
     """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`, which launches it as
     :func:`_runs`): one pass along each row, a cell joining the open run while the agents fit in the lanes."""
@@ -644,6 +666,27 @@ class CellGrid:
             raise ValueError("a bounded grid's layout is chosen on the host at each build")
         self.builds += builds
         self._runs_build = self.builds
+
+    @property
+    def max_side(self) -> int:
+        """The most cells a side a bounded open-space layout may have: its buckets must fit the arrays."""
+        side = int(round(self._capacity ** (1.0 / self.geometry.dim)))
+        while side**self.geometry.dim > self._capacity:
+            side -= 1
+        while (side + 1) ** self.geometry.dim <= self._capacity:
+            side += 1
+        return side
+
+    def count_bounded_builds(self, builds: int, per_side: int) -> None:
+        """Count `builds` builds of a bounded open-space grid that a model's kernel made itself
+        (:func:`bounded_layout`, :func:`build_grid`); `per_side` > 0: the last of them is of that many cells a side
+        and its runs were cut (:func:`cut_runs`) into :meth:`run_buffer`, else the grid is not the state's."""
+        self.builds += builds
+        if per_side:
+            h = self._fallback
+            self.geometry = GridGeometry(h.dim, BOUNDED, self.radius, per_side, per_side**h.dim, per_side**h.dim,
+                                         self.n)
+            self._runs_build = self.builds
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
         """A bounded grid's layout for these positions: side-R cells over the cube on their bounding box (open

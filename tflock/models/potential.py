@@ -53,6 +53,9 @@ from tflock.neighbors import (
     BOUNDED,
     LANES,
     CellGrid,
+    bounded_layout,
+    build_grid,
+    cut_runs,
     drawn_rank,
     load_cell,
     load_vec,
@@ -184,14 +187,19 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
             partial[blk, 2 * dim + 4] = slow
 
 
-@ti.kernel
-def _sort_velocities(n: ti.i32, dim: ti.template(), order: ti.types.ndarray(), vel: ti.types.ndarray(),
-                     vel_sorted: ti.types.ndarray()):
+@ti.func
+def _gather_velocities(n, dim: ti.template(), order: ti.template(), vel: ti.template(), vel_sorted: ti.template()):
     """Velocities in cell order: contiguous reads in the neighbour loops."""
     for s in range(n):
         e = order[s]
         for a in ti.static(range(dim)):
             vel_sorted[a, s] = vel[a, e]
+
+
+@ti.kernel
+def _sort_velocities(n: ti.i32, dim: ti.template(), order: ti.types.ndarray(), vel: ti.types.ndarray(),
+                     vel_sorted: ti.types.ndarray()):
+    _gather_velocities(n, dim, order, vel, vel_sorted)
 
 
 @ti.kernel
@@ -249,12 +257,11 @@ def _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim: ti.template(), id_s
     return u
 
 
-@ti.kernel
-def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(),
-                layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
-                id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
-                pos: ti.types.ndarray(), vel: ti.types.ndarray(), ids: ti.types.ndarray(), draw: ti.template(),
-                bits: ti.types.ndarray(), word_rank: ti.types.ndarray(), drawn: ti.types.ndarray()):
+@ti.func
+def _lanes_step(total_buckets, nc, r2cut, d2, dt, dim: ti.template(), layout: ti.template(), start: ti.template(),
+                run_end: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), vel_sorted: ti.template(),
+                pos: ti.template(), vel: ti.template(), ids: ti.template(), draw: ti.template(), bits: ti.template(),
+                word_rank: ti.template(), drawn: ti.template()):
     """One step on the CPU, ``LANES`` agents at a time: the agents of each run of cells (:meth:`CellGrid.runs`)
     against every candidate of the run's 3^(dim - 1) x (width + 2) cells, then the move (as
     :func:`_step_switching`, term for term and in the same order: a run's wider window only adds candidates beyond
@@ -288,6 +295,16 @@ def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: 
                         for a in ti.static(range(dim)):
                             drawn[0, r, a] = p[a, k]
                             drawn[1, r, a] = v[a, k]
+
+
+@ti.kernel
+def _step_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dt: float, dim: ti.template(),
+                layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
+                pos: ti.types.ndarray(), vel: ti.types.ndarray(), ids: ti.types.ndarray(), draw: ti.template(),
+                bits: ti.types.ndarray(), word_rank: ti.types.ndarray(), drawn: ti.types.ndarray()):
+    _lanes_step(total_buckets, nc, r2cut, d2, dt, dim, layout, start, run_end, id_sorted, pos_sorted, vel_sorted, pos,
+                vel, ids, draw, bits, word_rank, drawn)
 
 
 @ti.func
@@ -515,11 +532,11 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
                 settle_block(i0, i1 - i0, roots, inmask, parent, size)
 
 
-@ti.kernel
-def _move(n: ti.i32, dt: float, dim: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-          vel_sorted: ti.types.ndarray(), accel: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
-          ids: ti.types.ndarray(), draw: ti.template(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
-          drawn: ti.types.ndarray()):
+@ti.func
+def _move_all(n, dt, dim: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(),
+              vel_sorted: ti.template(), accel: ti.template(), pos: ti.template(), vel: ti.template(),
+              ids: ti.template(), draw: ti.template(), bits: ti.template(), word_rank: ti.template(),
+              drawn: ti.template()):
     """The move of :func:`_step_lanes` from the accelerations :func:`_step_sums_lanes` left (slot order), with
     the drawn agents' frame rows where `draw`."""
     for s in range(n):
@@ -537,6 +554,84 @@ def _move(n: ti.i32, dt: float, dim: ti.template(), id_sorted: ti.types.ndarray(
                 for a in ti.static(range(dim)):
                     drawn[0, r, a] = p[a]
                     drawn[1, r, a] = v[a]
+
+
+@ti.kernel
+def _move(n: ti.i32, dt: float, dim: ti.template(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+          vel_sorted: ti.types.ndarray(), accel: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+          ids: ti.types.ndarray(), draw: ti.template(), bits: ti.types.ndarray(), word_rank: ti.types.ndarray(),
+          drawn: ti.types.ndarray()):
+    _move_all(n, dt, dim, id_sorted, pos_sorted, vel_sorted, accel, pos, vel, ids, draw, bits, word_rank, drawn)
+
+
+@ti.kernel
+def _lane_steps(steps: ti.i32, ready: ti.i32, side0: ti.i32, max_side: ti.i32, draw: ti.i32, n: ti.i32, box: float,
+                cell_size: float, r2cut: float, d2: float, dt: float, dim: ti.template(), coords: ti.types.ndarray(),
+                bucket: ti.types.ndarray(), counts: ti.types.ndarray(), start: ti.types.ndarray(),
+                order: ti.types.ndarray(), slot_of: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
+                coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(), mixed: ti.types.ndarray(),
+                block_start: ti.types.ndarray(), bounds: ti.types.ndarray(), anchor: ti.types.ndarray(),
+                by_rank: ti.template(), run_end: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
+                accel: ti.types.ndarray(), pos: ti.types.ndarray(), vel: ti.types.ndarray(), ids: ti.types.ndarray(),
+                bits: ti.types.ndarray(), word_rank: ti.types.ndarray(), drawn: ti.types.ndarray(),
+                done: ti.types.ndarray()):
+    """Up to `steps` lane-wise steps of the switching topology in one launch, on one thread (a small swarm: a
+    launch costs more than its arithmetic): each the bounded grid's layout and build
+    (:func:`tflock.neighbors.bounded_layout`, :func:`tflock.neighbors.build_grid`, :func:`tflock.neighbors.cut_runs`),
+    :func:`_gather_velocities` and :func:`_lanes_step`, the bodies of the step's own launches, so every step
+    computes what they compute, bit for bit. It stops before a step whose swarm spreads beyond a bounded layout (the
+    host's step then hashes the cells). For the first step, `ready` says what is done already: 1 the grid is built
+    (bounded, `side0` cells a side), 2 the accelerations are summed too (by the metrics pass: the step is
+    :func:`_move_all`). After the steps it builds the grid of the state they made. ``done``: the steps made, the
+    builds, and the final grid's cells a side (0: not built). With `draw` and every step made, the drawn agents'
+    frame rows of the final state."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        made = 0
+        builds = 0
+        side = side0
+        built = ready  # 0 nothing, 1 the grid of the current state, 2 and its accelerations
+        stop = 0
+        while stop == 0:
+            if built == 0:
+                side = bounded_layout(n, dim, cell_size, max_side, pos, bounds)
+                if side > 0:
+                    cells = 1
+                    for _a in ti.static(range(dim)):
+                        cells *= side
+                    build_grid(pos, ids, n, n, box, cell_size, side, cells, cells, BOUNDED, dim, coords, bucket,
+                               counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
+                               block_start, bounds, anchor, by_rank)
+                    cut_runs(cells // side, side, start, run_end)
+                    builds += 1
+                    built = 1
+            if built == 0 or made == steps:
+                stop = 1
+            else:
+                if built == 2:
+                    _move_all(n, dt, dim, id_sorted, pos_sorted, vel_sorted, accel, pos, vel, ids, False, bits,
+                              word_rank, drawn)
+                else:
+                    cells = 1
+                    for _a in ti.static(range(dim)):
+                        cells *= side
+                    if ready == 1 and made == 0:  # a grid the host built: its runs may not be cut yet
+                        cut_runs(cells // side, side, start, run_end)
+                    _gather_velocities(n, dim, order, vel, vel_sorted)
+                    _lanes_step(cells, side, r2cut, d2, dt, dim, BOUNDED, start, run_end, id_sorted, pos_sorted,
+                                vel_sorted, pos, vel, ids, False, bits, word_rank, drawn)
+                made += 1
+                built = 0
+        done[0] = made
+        done[1] = builds
+        done[2] = ti.select(built == 1, side, 0)
+        if draw != 0 and made == steps:
+            for s in range(n):
+                r = drawn_rank(ids[s], bits, word_rank)
+                if r >= 0:
+                    for a in ti.static(range(dim)):
+                        drawn[0, r, a] = pos[a, s]
+                        drawn[1, r, a] = vel[a, s]
 
 
 @ti.kernel
@@ -628,6 +723,7 @@ class Potential(GridModel):
         self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise else None
         self._next_step = _NextStep(ti.ndarray(ftype, (dim, n if self.lane_wise else 1)))
         self._grid_step = -1
+        self._fused_done = ti.ndarray(ti.i32, 3)  # what a launch of _lane_steps made: steps, builds, grid side
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
             offsets, neighbours = to_csr(n, self.edges)
@@ -703,43 +799,72 @@ class Potential(GridModel):
         return {"x": x, "v": v}
 
     def advance(self, steps: int) -> None:
-        """Run `steps` steps: on a fixed graph with at most :data:`FUSED_MAX_N` agents all of them in one launch
-        (:func:`_steps_fixed`), else one step (a few launches) at a time."""
+        """Run `steps` steps: with at most :data:`FUSED_MAX_N` agents all of them in one launch (a fixed graph:
+        :func:`_steps_fixed`; switching, on the CPU: :func:`_lane_steps`, up to a step whose swarm no bounded grid
+        holds), else one step (a few launches) at a time."""
         p = self.params
-        d2 = p.desired_distance**2
-        grid = self.grid
         if not self.switching and steps > 1 and p.n <= FUSED_MAX_N:
-            _steps_fixed(steps, p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
-                         self.pos_next, self.scratch)
+            _steps_fixed(steps, p.n, p.desired_distance**2, p.dt, self.dim, self.offsets, self.neighbours, self.pos,
+                         self.vel, self.pos_next, self.scratch)
             if steps % 2:
                 self.pos, self.pos_next = self.pos_next, self.pos
                 self.vel, self.scratch = self.scratch, self.vel
             self.step_index += steps
             return
+        if self.lane_wise and steps > 0 and p.n <= FUSED_MAX_N:
+            steps -= self._lane_steps(steps)
         for _ in range(steps):
-            if self.switching:
-                self._ensure_grid()
-                g = grid.geometry  # this build's layout: bounded or hashed
-                if self._next_step.summed == (self.step_index, grid.builds):  # summed by the metrics pass
-                    _move(p.n, p.dt, self.dim, grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
-                          self.pos, self.vel, self.ids, *self._draw_arguments(2, self.dim))
-                    self.step_index += 1
-                    continue
-                _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
-                if self.lane_wise and g.boundary == BOUNDED:
-                    _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, self.dim, g.boundary,
-                                grid.start, grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos,
-                                self.vel, self.ids, *self._draw_arguments(2, self.dim))
-                else:
-                    _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.boundary, g.cells_per_side,
-                                    g.n_buckets, grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted,
-                                    grid.coords_sorted, self.scratch, self.pos, self.vel, self.ids)
+            self._one_step()
+
+    def _one_step(self) -> None:
+        p, grid = self.params, self.grid
+        d2 = p.desired_distance**2
+        if self.switching:
+            self._ensure_grid()
+            g = grid.geometry  # this build's layout: bounded or hashed
+            if self._next_step.summed == (self.step_index, grid.builds):  # summed by the metrics pass
+                _move(p.n, p.dt, self.dim, grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
+                      self.pos, self.vel, self.ids, *self._draw_arguments(2, self.dim))
+                self.step_index += 1
+                return
+            _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
+            if self.lane_wise and g.boundary == BOUNDED:
+                _step_lanes(g.total_buckets, g.cells_per_side, p.radius**2, d2, p.dt, self.dim, g.boundary,
+                            grid.start, grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self.pos,
+                            self.vel, self.ids, *self._draw_arguments(2, self.dim))
             else:
-                _step_fixed(p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
-                            self.pos_next, self.scratch)
-                self.pos, self.pos_next = self.pos_next, self.pos
-                self.vel, self.scratch = self.scratch, self.vel
-            self.step_index += 1
+                _step_switching(p.n, p.radius**2, d2, p.dt, self.dim, g.boundary, g.cells_per_side,
+                                g.n_buckets, grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted,
+                                grid.coords_sorted, self.scratch, self.pos, self.vel, self.ids)
+        else:
+            _step_fixed(p.n, d2, p.dt, self.dim, self.offsets, self.neighbours, self.pos, self.vel,
+                        self.pos_next, self.scratch)
+            self.pos, self.pos_next = self.pos_next, self.pos
+            self.vel, self.scratch = self.scratch, self.vel
+        self.step_index += 1
+
+    def _lane_steps(self, steps: int) -> int:
+        """Up to `steps` lane-wise steps in one launch of :func:`_lane_steps`, from the grid and the accelerations
+        ready for the current state (built by a frame, summed by the metrics pass), and the grid of the state they
+        make; the number made (fewer where the swarm spread beyond a bounded grid)."""
+        p, grid = self.params, self.grid
+        t0, ready = self.step_index, 0
+        if self._grid_step == t0 and grid.geometry.boundary == BOUNDED:
+            ready = 2 if self._next_step.summed == (t0, grid.builds) else 1
+        draw, bits, word_rank, drawn = self._draw_arguments(2, self.dim, made=t0 + steps)
+        _lane_steps(steps, ready, grid.geometry.cells_per_side, grid.max_side, int(draw), p.n, p.box, grid.radius,
+                    p.radius**2, p.desired_distance**2, p.dt, self.dim, grid.coords, grid.bucket, grid.counts,
+                    grid.start, grid.order, grid.slot_of, grid.pos_sorted, grid.coords_sorted, grid.id_sorted,
+                    grid.mixed, grid.block_start, grid.bounds, grid.anchor, grid.rank_sort, grid.run_buffer(),
+                    self.scratch, self._next_step.accel, self.pos, self.vel, self.ids, bits, word_rank, drawn,
+                    self._fused_done)
+        made, builds, side = (int(x) for x in self._fused_done.to_numpy())
+        grid.count_bounded_builds(builds, side)
+        if made < steps:  # the frame rows were not written: the host's steps take over
+            self._drawn = None
+        self.step_index = t0 + made
+        self._grid_step = self.step_index if side else -1
+        return made
 
     # ------------------------------------------------------------------------------------------------------
     # Metrics.
@@ -860,6 +985,15 @@ class Potential(GridModel):
             "kinetic_energy": 0.5 * float(sums[dim + 1]),
         }
 
+    def _nearest_exact(self) -> bool:
+        """Whether ``nearest``'s smallest distance is the exact minimum over all pairs: switching, each agent's
+        nearest distance capped at R comes from the grid, and a value under the cap is a pair within R, which the grid
+        sees; so is the closest pair of all, then. Else (every agent alone) only all pairs tell."""
+        if not self.switching:
+            return False
+        cap = np.sqrt(np.asarray(self.params.radius**2, dtype=self.engine.real))  # the kernels' sqrt(R^2)
+        return bool(host_array(self.nearest).min() < cap)
+
     def metrics(self) -> dict[str, float]:
         p = self.params
         n = p.n
@@ -869,7 +1003,7 @@ class Potential(GridModel):
         if not self.switching:
             if n > EXACT_PAIRS_MAX:
                 self._grid_pairs(self._grid_valency, self._grid_energy)
-        if n <= EXACT_PAIRS_MAX:
+        if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
             _exact_nearest(n, self.dim, self.pos, self.nearest)
         if self.switching:
             valency = host_array(self.valency)
