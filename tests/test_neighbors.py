@@ -160,6 +160,31 @@ def test_drawn_edges_match_brute_force(engine, dim, boundary):
     assert DrawnEdges(dim, boundary, box, 1.5, engine.real).edges(x[:1], 10).shape == (0, 2, dim)
 
 
+@pytest.mark.parametrize("dim,boundary", [(2, "periodic"), (2, "open"), (3, "periodic"), (3, "reflecting")])
+def test_few_drawn_agents_edges_from_all_pairs_match_the_grid(engine, monkeypatch, dim, boundary):
+    """A frame of at most ALL_PAIRS_ROWS drawn agents takes its edges from all pairs in NumPy: the brute-force pairs,
+    row by row, each edge's far end by the minimum image, and under a cap the same whole rows as the grid's path."""
+    import tflock.neighbors as neighbors
+
+    rng = np.random.default_rng(dim + 10)
+    box, m = 5.0, neighbors.ALL_PAIRS_ROWS
+    x = (rng.random((m, dim)) * box).astype(engine.real)
+    expected = induced_pairs(x, 1.5, boundary, box)
+    assert len(expected) > 300
+    small = DrawnEdges(dim, boundary, box, 1.5, engine.real).edges(x, 10**6)
+    assert edge_rows(small, x, box, periodic=boundary == "periodic") == expected
+    caps = (10**6, 200, 3)
+    with monkeypatch.context() as patch:
+        patch.setattr(neighbors, "ALL_PAIRS_ROWS", 0)
+        grid_path = DrawnEdges(dim, boundary, box, 1.5, engine.real)
+        by_grid = [grid_path.edges(x, cap) for cap in caps]
+    for cap, grid_edges in zip(caps, by_grid, strict=True):
+        by_pairs = DrawnEdges(dim, boundary, box, 1.5, engine.real).edges(x, cap)
+        assert by_pairs.dtype == grid_edges.dtype and by_pairs.shape == grid_edges.shape, cap
+        assert sorted(map(tuple, by_pairs.reshape(len(by_pairs), -1).tolist())) == sorted(
+            map(tuple, grid_edges.reshape(len(grid_edges), -1).tolist())), cap
+
+
 @pytest.mark.parametrize("boundary,replicas", [("periodic", 1), ("reflecting", 3), ("open", 1), ("open", 2)])
 def test_rank_sort_builds_the_same_grid(engine, boundary, replicas):
     """The GPU's in-bucket ordering (each agent's rank among its bucket's ids) and the CPU's insertion sort give the

@@ -59,6 +59,8 @@ _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 #: layout code of a bounded open-space grid (see CellGrid): not a boundary (its displacement is the plain difference)
 BOUNDED = 3
+#: a frame of at most this many drawn agents finds its edges from all their pairs in NumPy (see DrawnEdges)
+ALL_PAIRS_ROWS = 128
 #: buckets a periodic box's window grid may use at least (see CellGrid)
 WINDOW_MIN_BUCKETS = 4096
 #: agents a lane-wise CPU kernel treats together, 8 or 16 float32 lanes for this CPU (see :func:`host_lanes` and
@@ -874,6 +876,8 @@ class DrawnEdges:
         m = len(positions)
         if m < 2 or max_edges <= 0:
             return np.zeros((0, 2, self.dim), dtype=self.real)
+        if m <= ALL_PAIRS_ROWS:
+            return self._all_pairs(np.asarray(positions, dtype=self.real), max_edges)
         rows = min(m, 1 << max(8, math.ceil(math.log2(max(1.25 * self._rows_needed, 1.0)))))
         while True:
             grid, pos, ids = self._grid(rows)
@@ -896,6 +900,21 @@ class DrawnEdges:
             offsets[1:] = total[: needed - 1]
             _lower_pairs(needed, *args, counts, offsets, 1, edges)
         return edges
+
+    def _all_pairs(self, x: np.ndarray, max_edges: int) -> np.ndarray:
+        """:meth:`edges` of a few rows from all their pairs in NumPy, tested as :func:`_lower_pairs` tests them (a
+        grid's launches cost more than the pairs): each row's edges to the earlier rows, those in row order."""
+        d = x[None, :, :] - x[:, None, :]  # d[r, k] = x[k] - x[r]
+        if boundary_code(self.boundary) == PERIODIC:
+            half = self.real(0.5 * self.box)
+            d = np.where(d > half, d - self.real(self.box), np.where(d < -half, d + self.real(self.box), d))
+        radius = self.real(self.radius)
+        near = np.tril((d * d).sum(axis=2) <= radius * radius, k=-1)
+        total = np.cumsum(near.sum(axis=1))
+        needed = int(np.searchsorted(total, max_edges, side="right"))  # rows whose pairs all fit
+        r, k = np.nonzero(near[:needed])
+        far = x[r] + d[r, k] if boundary_code(self.boundary) == PERIODIC else x[k]  # the kernel's p + (q - p) is q
+        return np.stack([x[r], far], axis=1)
 
     def _arguments(self, grid: CellGrid) -> tuple:
         g = grid.geometry
