@@ -410,14 +410,15 @@ def test_frame_rows_are_the_drawn_agents_state(make_sim, model):
 ])
 def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, model_name, params):
     """A lane-wise step told by draw_next that its state will be drawn writes the drawn agents' rows itself; the
-    frame made from them equals, bit for bit, the frame its own pass over the grid draws from the same state."""
+    frame made from them equals, bit for bit, the frame its own pass over the grid draws from the same state. So
+    does a run of steps told several steps ahead (the fused loops write the rows of the state they end at)."""
     sim = make_sim(model=model_name, params=params, steps=20)
     model = sim.model
     sim.step(4)
     selected = np.arange(2, 3000, 7)
-    for _ in range(3):
-        model.draw_next(selected)
-        model.advance(1)
+    for ahead in (1, 5, 1, 3):
+        model.draw_next(selected, model.step_index + ahead)
+        model.advance(ahead)
         announced = model.frame(selected, max_edges=300)
         assert model._drawn is not None or not model.lane_wise  # the step wrote the rows (CPU lane-wise step)
         model.invalidate()  # forgets them: the frame is drawn again by its own pass (on the same grid, rebuilt)

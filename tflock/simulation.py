@@ -297,12 +297,11 @@ class Simulation:
         end = self.model.step_index + steps
         while self.model.step_index < end:
             t = self._next_stop(self.model.step_index, end)
-            if self._frame_due(t):
-                self.model.advance(t - 1 - self.model.step_index)
-                self.model.draw_next(self._selected)  # announces the state of the step after this one
-                self.model.advance(1)
-            else:
-                self.model.advance(t - self.model.step_index)
+            if self._frame_due(t):  # announced before the step that makes the drawn state: it may write the rows
+                if not self.model.draws_ahead:
+                    self.model.advance(t - 1 - self.model.step_index)
+                self.model.draw_next(self._selected, t)
+            self.model.advance(t - self.model.step_index)
             last = t == self.config.steps
             checkpoint = bool(self.checkpoint_every and self.checkpoint_path and t % self.checkpoint_every == 0)
             full = last or checkpoint or self._metrics_due(t)  # where the stability guard's Lyapunov test runs

@@ -161,9 +161,14 @@ class Model(ABC):
     def invalidate(self) -> None:  # noqa: B027 (an optional hook: models without derived data need nothing)
         """Forget data derived from the state (e.g. a neighbour grid) after the state was replaced."""
 
-    def draw_next(self, selected: np.ndarray) -> None:  # noqa: B027 (an optional hook, as invalidate)
-        """Say that the state after the next step will be drawn, for the `selected` agents (sorted ids): a model
-        may gather what :meth:`frame` needs during that step instead of in passes of its own."""
+    #: whether :meth:`draw_next` may name a step further ahead than the next (the run then reaches it in one
+    #: ``advance``); False for a model whose announcement reads the state the drawn step starts from
+    draws_ahead = True
+
+    def draw_next(self, selected: np.ndarray, step: int | None = None) -> None:  # noqa: B027 (an optional hook)
+        """Say that the state of step `step` (default: the next step's) will be drawn, for the `selected` agents
+        (sorted ids): a model may gather what :meth:`frame` needs during the step that makes it instead of in passes
+        of its own."""
 
 
 class GridModel(Model):
@@ -188,10 +193,10 @@ class GridModel(Model):
         self._grid_step = -1
         self._drawn = None
 
-    def draw_next(self, selected: np.ndarray) -> None:
+    def draw_next(self, selected: np.ndarray, step: int | None = None) -> None:
         """Steps that can write the drawn agents' frame rows (the lane-wise CPU steps) do so for the state they make
         (see :meth:`_draw_arguments`); the frame then needs no pass of its own."""
-        self._announced = (self.step_index + 1, self._subset(selected))
+        self._announced = (self.step_index + 1 if step is None else step, self._subset(selected))
 
     def _draw_arguments(self, layers: int, width: int, made: int | None = None) -> tuple:
         """``(draw, bits, word_rank, rows)`` for a step kernel about to make the state of step `made` (default: the
