@@ -154,7 +154,7 @@ def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params
                 single.advance(1)
             a = single.metrics()
         fused.advance(steps)
-        stopped.append(int(fused._fused_done.to_numpy()[0]) < steps)
+        stopped.append(int(fused._fused_done[0]) < steps)
         b = fused.metrics()
         for name in ("pos", "vel", "ids", "scratch"):
             assert np.array_equal(getattr(single, name).to_numpy(), getattr(fused, name).to_numpy()), (steps, name)

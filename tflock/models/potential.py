@@ -723,7 +723,9 @@ class Potential(GridModel):
         self.components = LaneComponents(self.grid, engine.threads) if self.lane_wise else None
         self._next_step = _NextStep(ti.ndarray(ftype, (dim, n if self.lane_wise else 1)))
         self._grid_step = -1
-        self._fused_done = ti.ndarray(ti.i32, 3)  # what a launch of _lane_steps made: steps, builds, grid side
+        # what a launch of _lane_steps made: steps, builds, grid side (host memory, which the CPU kernel writes;
+        # not an ndarray: checkpoints keep the model's ndarrays, and this is no state)
+        self._fused_done = np.zeros(3, dtype=np.int32)
         if not self.switching:
             self.edges = fixed_graph_edges(n, params.graph, seed, params.graph_p, params.graph_file)
             offsets, neighbours = to_csr(n, self.edges)
@@ -858,7 +860,7 @@ class Potential(GridModel):
                     grid.mixed, grid.block_start, grid.bounds, grid.anchor, grid.rank_sort, grid.run_buffer(),
                     self.scratch, self._next_step.accel, self.pos, self.vel, self.ids, bits, word_rank, drawn,
                     self._fused_done)
-        made, builds, side = (int(x) for x in self._fused_done.to_numpy())
+        made, builds, side = (int(x) for x in self._fused_done)
         grid.count_bounded_builds(builds, side)
         if made < steps:  # the frame rows were not written: the host's steps take over
             self._drawn = None
