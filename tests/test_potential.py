@@ -322,11 +322,19 @@ def _lane_pass_state(dim, shape):
 @pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("shape", ["clusters", "flock"])
-def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engine, dim, shape):
+@pytest.mark.parametrize("one_launch", [True, False])
+def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engine, monkeypatch, dim, shape,
+                                                                             one_launch):
     """The metrics pass that also sums the next step (each agent's valency, energy and nearest distance, the
     components by stripes of grid layers and their cross-stripe joins) gives the oracle's numbers, and the steps
-    after it are bit for bit those of a run without metrics: many small clusters, and one dense cluster."""
+    after it are bit for bit those of a run without metrics: many small clusters, and one dense cluster. Both the
+    small swarm's pass in one launch (the components as one stripe) and the striped pass of larger swarms
+    (FUSED_MAX_N = 0 here)."""
+    import tflock.models.potential as potential
     from tflock.neighbors import BOUNDED
+
+    if not one_launch:
+        monkeypatch.setattr(potential, "FUSED_MAX_N", 0)
 
     x, v, side = _lane_pass_state(dim, shape)
     n = len(x)
@@ -339,7 +347,7 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
         state = observed.state()
         observed.lyapunov()  # the pass alone: min_distance of a small swarm comes from all pairs, not from it
         assert observed.grid.geometry.boundary == BOUNDED and observed._next_step.summed is not None
-        if t == 0 and shape == "clusters":
+        if t == 0 and shape == "clusters" and not one_launch:
             assert observed.components.stripes()[0] > 1  # the cross-stripe joins run
         xs = state["x"].astype(np.float64)
         r2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(axis=2)
@@ -365,6 +373,26 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
         plain.advance(1)
         for key, value in observed.state().items():
             assert np.array_equal(value, plain.state()[key]), f"{key} after step {t + 1}"
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_small_swarm_velocity_statistics_are_the_kernels(engine, monkeypatch, dim):
+    """A small swarm's velocity metrics, in NumPy on the velocities' host memory, are the two kernel launches' (to
+    the last bits of a float64 sum), an agent at rest included."""
+    import tflock.models.potential as potential
+
+    cfg = config(n=50, box=6.0, dim=dim, topology="switching")
+    model = Potential(cfg.params, cfg.seed, engine)
+    model.advance(5)
+    state = model.state()
+    state["v"][7] = 0.0
+    model.set_state(state, 5)
+    small = model._velocity_stats()
+    monkeypatch.setattr(potential, "HOST_STATS_MAX", 0)
+    kernels = model._velocity_stats()
+    assert small.keys() == kernels.keys()
+    for name, value in kernels.items():
+        assert small[name] == pytest.approx(value, rel=1e-12, abs=1e-15), name
 
 
 @pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")

@@ -40,6 +40,7 @@ from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
     block_roots,
+    count_roots,
     fold_label,
     join_candidate,
     settle_block,
@@ -69,8 +70,11 @@ from tflock.neighbors import (
 from tflock.space import OPEN
 from tflock.taichi_host import host_array, host_view
 
-#: a fixed-graph swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch
+#: a swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch (a fixed
+#: graph's, and a switching one's on the CPU), and its lane-wise metrics pass in two launches
 FUSED_MAX_N = 4096
+#: the velocity metrics of at most this many agents are computed in NumPy on the CPU (two launches cost more)
+HOST_STATS_MAX = 4096
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
@@ -490,6 +494,44 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
                     nearest[ids[q]] = ti.sqrt(near[q])
 
 
+@ti.func
+def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim: ti.template(), layout: ti.template(),
+                       start: ti.template(), run_end: ti.template(), id_sorted: ti.template(),
+                       pos_sorted: ti.template(), parent: ti.template(), size: ti.template()):
+    """Stripe j's part of :func:`_components_lanes`."""
+    b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+    for b in range(b_lo, b_hi):
+        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+        for block in range((a1 - a0 + LANES - 1) // LANES):
+            i0 = a0 + block * LANES
+            i1 = ti.min(i0 + LANES, a1)
+            slots = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
+            p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))]
+                           for a in ti.static(range(dim))])
+            ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
+            label = ti.Vector([NO_LABEL] * LANES)
+            other = ti.Vector([NO_LABEL] * LANES)
+            for r in range(ti.static(3 ** (dim - 1))):  # the candidates in the stripe before the block
+                begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                label, other = _pair_labels(ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, r2cut,
+                                            dim, id_sorted, pos_sorted, parent)
+            inmask = _block_mask(p, ids, r2cut, dim)
+            roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+            while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                bit = recheck & (-recheck)
+                q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                here = load_vec(pos_sorted, i0 + q, dim)
+                root = -1
+                for r in range(ti.static(3 ** (dim - 1))):
+                    begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
+                    for k in range(ti.max(begin, s_lo), ti.min(end, i0)):
+                        if (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
+                            root = join_candidate(root, k, parent, size)
+                roots[q] = root
+                recheck ^= bit
+            settle_block(i0, i1 - i0, roots, inmask, parent, size)
+
+
 @ti.kernel
 def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float,
                       dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(),
@@ -499,37 +541,26 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
     a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them)."""
     ti.loop_config(block_dim=1)  # a stripe a task
     for j in range(n_stripes):
-        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
-        for b in range(b_lo, b_hi):
-            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-            for block in range((a1 - a0 + LANES - 1) // LANES):
-                i0 = a0 + block * LANES
-                i1 = ti.min(i0 + LANES, a1)
-                slots = ti.Vector([ti.min(i0 + k, a1 - 1) for k in ti.static(range(LANES))])
-                p = ti.Matrix([[pos_sorted[a, slots[q]] for q in ti.static(range(LANES))]
-                               for a in ti.static(range(dim))])
-                ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
-                label = ti.Vector([NO_LABEL] * LANES)
-                other = ti.Vector([NO_LABEL] * LANES)
-                for r in range(ti.static(3 ** (dim - 1))):  # the candidates in the stripe before the block
-                    begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                    label, other = _pair_labels(ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, r2cut,
-                                                dim, id_sorted, pos_sorted, parent)
-                inmask = _block_mask(p, ids, r2cut, dim)
-                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
-                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
-                    bit = recheck & (-recheck)
-                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
-                    here = load_vec(pos_sorted, i0 + q, dim)
-                    root = -1
-                    for r in range(ti.static(3 ** (dim - 1))):
-                        begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                        for k in range(ti.max(begin, s_lo), ti.min(end, i0)):
-                            if (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
-                                root = join_candidate(root, k, parent, size)
-                    roots[q] = root
-                    recheck ^= bit
-                settle_block(i0, i1 - i0, roots, inmask, parent, size)
+        _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim, layout, start, run_end, id_sorted,
+                           pos_sorted, parent, size)
+
+
+@ti.kernel
+def _small_components(n: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float, dim: ti.template(),
+                      order: ti.types.ndarray(), vel: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
+                      start: ti.types.ndarray(), run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                      pos_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray(),
+                      result: ti.types.ndarray()):
+    """A small swarm's part of the lane-wise metrics pass before its sums (:func:`_step_sums_lanes`), in one launch
+    on one thread (a launch costs more than its arithmetic): the velocities in cell order
+    (:func:`_gather_velocities`) and the components of :func:`_components_lanes` as one stripe, counted
+    (:func:`tflock.lane_graph.count_roots`: result = components, agents in the largest)."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        _gather_velocities(n, dim, order, vel, vel_sorted)
+        _stripe_components(0, 1, layers, layer_buckets, nc, r2cut, dim, BOUNDED, start, run_end, id_sorted,
+                           pos_sorted, parent, size)
+        count_roots(n, parent, size, result)
 
 
 @ti.func
@@ -683,6 +714,27 @@ def _drawn_gather(m: ti.i32, dim: ti.template(), slot: ti.types.ndarray(), order
         for a in ti.static(range(dim)):
             out[0, r, a] = pos_sorted[a, s]
             out[1, r, a] = vel[a, e]
+
+
+def velocity_stats(vel: np.ndarray) -> dict[str, float]:
+    """:meth:`Potential._velocity_stats` of velocities (dim, n) in float64, as the kernels compute them: the
+    mismatch |v_i - mean v| (mean and max), the mean speed, the speed spread max - min |v_i|, the polarization
+    |mean of v_i / |v_i|| (agents at rest left out of the sum, not of the mean) and the kinetic energy."""
+    v = np.asarray(vel, dtype=np.float64)
+    n = v.shape[1]
+    squares = (v * v).sum(axis=0)
+    speed = np.sqrt(squares)
+    moving = speed > 0
+    heading = (v[:, moving] / speed[moving]).sum(axis=1) / n
+    gap = np.sqrt(((v - v.mean(axis=1, keepdims=True)) ** 2).sum(axis=0))
+    return {
+        "velocity_mismatch_mean": float(gap.mean()),
+        "velocity_mismatch_max": float(gap.max()),
+        "speed_mean": float(speed.mean()),
+        "speed_spread": float(speed.max() - speed.min()),
+        "polarization": float(np.sqrt((heading * heading).sum())),
+        "kinetic_energy": 0.5 * float(squares.sum()),
+    }
 
 
 class _NextStep:
@@ -930,15 +982,29 @@ class Potential(GridModel):
         g = grid.geometry
         d2, r2cut = p.desired_distance**2, p.radius**2
         v_cut = d2 / r2cut + math.log(r2cut)
+        if p.n <= FUSED_MAX_N:  # the velocities in cell order and the components (one stripe, counted): one launch
+            layer_buckets = g.cells_per_side ** (self.dim - 1)
+            _small_components(p.n, g.total_buckets // layer_buckets, layer_buckets, g.cells_per_side, r2cut, self.dim,
+                              grid.order, self.vel, self.scratch, grid.start, grid.runs(), grid.id_sorted,
+                              grid.pos_sorted, found.parent, found.size, found.result)
+            self._sum_pairs(r2cut, d2, v_cut)
+            self._components_found = (self.step_index, int(found.result[0]))
+            return
         _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
-        _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start,
-                         grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
-                         self.valency, self.energy, self.nearest)
+        self._sum_pairs(r2cut, d2, v_cut)
         stripes = found.stripes()
         _components_lanes(*stripes, g.cells_per_side, r2cut, self.dim, g.boundary, grid.start, grid.runs(),
                           grid.id_sorted, grid.pos_sorted, found.parent, found.size)
-        self._next_step.summed = (self.step_index, grid.builds)
         self._components_found = (self.step_index, found.finish(r2cut, p.box, OPEN, strict=True)[0])  # |r_ij| < R
+
+    def _sum_pairs(self, r2cut: float, d2: float, v_cut: float) -> None:
+        """:func:`_step_sums_lanes` on the grid, the velocities in cell order in ``scratch``."""
+        grid = self.grid
+        g = grid.geometry
+        _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start,
+                         grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
+                         self.valency, self.energy, self.nearest)
+        self._next_step.summed = (self.step_index, grid.builds)
 
     def lyapunov(self) -> Lyapunov:
         """W (eq. 5) on a fixed graph, Q (eq. 10) less its constant N (N - 1) / 2 V(R) when switching: kinetic
@@ -967,8 +1033,12 @@ class Potential(GridModel):
 
     def _velocity_stats(self) -> dict[str, float]:
         """Velocity mismatch, speeds, polarization and kinetic energy over all agents, from two kernel launches
-        (the mean velocity, then the mismatch against it) and their block partials: no copy of the velocities."""
+        (the mean velocity, then the mismatch against it) and their block partials: no copy of the velocities; a
+        small swarm's in NumPy on the velocities' host memory (:func:`velocity_stats`)."""
         n, dim = self.params.n, self.dim
+        v = host_view(self.vel) if n <= HOST_STATS_MAX else None
+        if v is not None:
+            return velocity_stats(v)
         partial = _block_partials((n_blocks(n), _velocity_columns(dim)), ti.f64)
         centre = _block_partials((dim,), ti.f64)
         _velocity_stats(n, dim, self.vel, centre, False, partial)
