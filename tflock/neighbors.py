@@ -46,6 +46,7 @@ top-level loops: Taichi's CUDA backend keeps such values in a global buffer and 
 """
 
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -844,6 +845,14 @@ def _lower_pairs(rows: ti.i32, slot_of: ti.types.ndarray(), radius: float, box: 
             counts[r] = e
 
 
+@functools.lru_cache(maxsize=8)
+def _earlier(m: int) -> np.ndarray:
+    """(m, m) booleans, True where column k comes before row r (read only: shared between calls)."""
+    mask = np.tri(m, m, -1, dtype=bool)
+    mask.flags.writeable = False
+    return mask
+
+
 class DrawnEdges:
     """Neighbour edges among the drawn agents of a frame: a faithful sample of the R-graph (DESIGN.md section 5).
 
@@ -904,16 +913,23 @@ class DrawnEdges:
     def _all_pairs(self, x: np.ndarray, max_edges: int) -> np.ndarray:
         """:meth:`edges` of a few rows from all their pairs in NumPy, tested as :func:`_lower_pairs` tests them (a
         grid's launches cost more than the pairs): each row's edges to the earlier rows, those in row order."""
-        d = x[None, :, :] - x[:, None, :]  # d[r, k] = x[k] - x[r]
-        if boundary_code(self.boundary) == PERIODIC:
-            half = self.real(0.5 * self.box)
-            d = np.where(d > half, d - self.real(self.box), np.where(d < -half, d + self.real(self.box), d))
+        m = len(x)
+        periodic = boundary_code(self.boundary) == PERIODIC
+        box, half = self.real(self.box), self.real(0.5 * self.box)
+        r2 = np.zeros((m, m), dtype=self.real)
+        steps = []  # per axis, d[r, k] = x[k] - x[r] (minimum image when periodic)
+        for a in range(x.shape[1]):  # one axis at a time: a sum over a last axis of 2 or 3 is slow in NumPy
+            d = x[None, :, a] - x[:, None, a]
+            if periodic:
+                d = np.where(d > half, d - box, np.where(d < -half, d + box, d))
+            r2 += d * d
+            steps.append(d)
         radius = self.real(self.radius)
-        near = np.tril((d * d).sum(axis=2) <= radius * radius, k=-1)
+        near = (r2 <= radius * radius) & _earlier(m)
         total = np.cumsum(near.sum(axis=1))
         needed = int(np.searchsorted(total, max_edges, side="right"))  # rows whose pairs all fit
         r, k = np.nonzero(near[:needed])
-        far = x[r] + d[r, k] if boundary_code(self.boundary) == PERIODIC else x[k]  # the kernel's p + (q - p) is q
+        far = x[r] + np.stack([d[r, k] for d in steps], axis=1) if periodic else x[k]  # the kernel's p + (q - p) is q
         return np.stack([x[r], far], axis=1)
 
     def _arguments(self, grid: CellGrid) -> tuple:

@@ -46,7 +46,8 @@ def host_view(array: Any) -> np.ndarray | None:
         address = impl.get_runtime().prog.get_ndarray_data_ptr_as_int(array.arr)
         memory = (ctypes.c_char * nbytes).from_address(address)
         view = array.__dict__["_tflock_view"] = np.frombuffer(memory, dtype=dtype).reshape(shape)
-    impl.get_runtime().sync()  # CPU launches return when done; this keeps it so (3 us)
+    impl.get_runtime().prog.synchronize()  # CPU launches return when done; this keeps it so (0.6 us; the runtime's
+    # sync() also materializes pending fields, 4 us, which a view of an ndarray does not need)
     return view
 
 
