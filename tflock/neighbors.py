@@ -670,13 +670,14 @@ class CellGrid:
         self.builds += builds
         self._runs_build = self.builds
 
-    @property
+    @functools.cached_property
     def max_side(self) -> int:
-        """The most cells a side a bounded open-space layout may have: its buckets must fit the arrays."""
-        side = int(round(self._capacity ** (1.0 / self.geometry.dim)))
-        while side**self.geometry.dim > self._capacity:
+        """The most cells a side a bounded layout may have: its buckets must fit the arrays."""
+        dim = self._fallback.dim
+        side = int(round(self._capacity ** (1.0 / dim)))
+        while side**dim > self._capacity:
             side -= 1
-        while (side + 1) ** self.geometry.dim <= self._capacity:
+        while (side + 1) ** dim <= self._capacity:
             side += 1
         return side
 
@@ -702,7 +703,7 @@ class CellGrid:
         _cell_bounds(self.n, h.dim, self.box, self.radius, layout, pos, self._bound_blocks, self.bounds, self.anchor)
         lo, hi = self.bounds.to_numpy().astype(np.int64)
         per_side = int(np.max(hi - lo)) + 1
-        if per_side < 1 or per_side**h.dim > self._capacity:
+        if per_side < 1 or per_side > self.max_side:  # the rule bounded_layout applies in a model's kernel
             return h
         if layout == WINDOW:  # a finite anchor too (were it not, every agent's cell would be the same nonsense)
             if (per_side + 2) * self.radius > self.box or not np.isfinite(self.anchor.to_numpy()).all():

@@ -197,6 +197,7 @@ class Adaptive(GridModel):
     """
 
     name = "adaptive"
+    draws_ahead = False  # a frame's announcement keeps velocities of the state the drawn step starts from
 
     @classmethod
     def can_batch(cls, params: AdaptiveParams) -> bool:
@@ -375,12 +376,12 @@ class Adaptive(GridModel):
         """The neighbour counts the last neighbour pass left, where they are the current state's."""
         return self.graph.degree if self._degrees_step == (self.step_index,) else None
 
-    draws_ahead = False  # the announcement keeps velocities of the state the drawn step starts from
-
     def draw_next(self, selected: np.ndarray, step: int | None = None) -> None:
         """Keep the drawn agents' velocities of the move the next step makes (eq. 5 uses phi(k) and d(k), which
         that step replaces): the arrows of its frame show the move just made, as every model's do. `step` can only
         be the next (see ``draws_ahead``)."""
+        if step is not None and step != self.step_index + 1:
+            raise ValueError(f"the adaptive model draws the next step's state ({self.step_index + 1}), not {step}")
         self._last_move = (self.step_index + 1, self._velocity_rows(selected)[:, self.params.dim:])
 
     def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
