@@ -107,15 +107,15 @@ def test_stripes_do_not_change_the_partition(engine, threads):
 
 def test_roots_counted_on_the_host_and_by_the_kernel_agree(engine, monkeypatch):
     """A small swarm's components are counted in NumPy on the host memory of the pass's parents; the kernel's count
-    (HOST_COUNT_MAX = 0) gives the same numbers: many clusters, several stripes."""
-    import tflock.lane_graph as lane_graph
+    (SMALL_SWARM_MAX = 0) gives the same numbers: many clusters, several stripes."""
+    import tflock.taichi_host as taichi_host
 
     cfg = config(2500, 34.0)
     model = Vicsek(cfg.params, cfg.seed, engine)
     model.advance(12)
     host = model.metrics()
     assert model.components.stripes()[0] > 1 and host["clusters"] > 1
-    monkeypatch.setattr(lane_graph, "HOST_COUNT_MAX", 0)
+    monkeypatch.setattr(taichi_host, "SMALL_SWARM_MAX", 0)
     model.invalidate()
     kernel = model.metrics()
     assert (host["clusters"], host["largest_cluster"]) == (kernel["clusters"], kernel["largest_cluster"])

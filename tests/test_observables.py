@@ -39,9 +39,9 @@ def upload(x: np.ndarray):
 @pytest.mark.parametrize("counted", ["kernel", "numpy"])
 def test_box_counts_and_profiles_match_reference(engine, dim, counted, monkeypatch):
     """The kernels, and for small swarms on the CPU NumPy over the arrays' memory, count as the reference does."""
-    import tflock.observables
+    import tflock.taichi_host
 
-    monkeypatch.setattr(tflock.observables, "HOST_COUNT_MAX", 0 if counted == "kernel" else 10**6)
+    monkeypatch.setattr(tflock.taichi_host, "SMALL_SWARM_MAX", 0 if counted == "kernel" else 10**6)
     box, n, replicas = 7.0, 600, 3
     rng = np.random.default_rng(dim)
     systems = [rng.uniform(0, box, (n, dim)).astype(REAL) for _ in range(replicas)]

@@ -379,7 +379,7 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
 def test_small_swarm_velocity_statistics_are_the_kernels(engine, monkeypatch, dim):
     """A small swarm's velocity metrics, in NumPy on the velocities' host memory, are the two kernel launches' (to
     the last bits of a float64 sum), an agent at rest included."""
-    import tflock.models.potential as potential
+    import tflock.taichi_host as taichi_host
 
     cfg = config(n=50, box=6.0, dim=dim, topology="switching")
     model = Potential(cfg.params, cfg.seed, engine)
@@ -388,7 +388,7 @@ def test_small_swarm_velocity_statistics_are_the_kernels(engine, monkeypatch, di
     state["v"][7] = 0.0
     model.set_state(state, 5)
     small = model._velocity_stats()
-    monkeypatch.setattr(potential, "HOST_STATS_MAX", 0)
+    monkeypatch.setattr(taichi_host, "SMALL_SWARM_MAX", 0)
     kernels = model._velocity_stats()
     assert small.keys() == kernels.keys()
     for name, value in kernels.items():

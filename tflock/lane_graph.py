@@ -29,7 +29,7 @@ import taichi as ti
 
 from tflock.neighbors import LANES, CellGrid, load_cell, load_vec, span_agents, span_count, stencil_span
 from tflock.space import displacement
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_view, small_host_view
 
 #: no candidate seen: the initial smallest label of a lane
 NO_LABEL = 2**31 - 1
@@ -241,10 +241,6 @@ def _count_components(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndar
     count_roots(n, parent, size, result)
 
 
-#: up to this many agents (on the CPU) :meth:`LaneComponents.finish` counts the roots in NumPy
-HOST_COUNT_MAX = 4096
-
-
 class LaneComponents:
     """Scratch and results of the components a lane-wise pass finds on one grid (box, window or bounded layouts).
 
@@ -279,7 +275,7 @@ class LaneComponents:
             _cross_stripes(n_stripes, layers, layer_buckets, r2, box, g.cells_per_side, g.n_buckets, g.boundary,
                            metric, strict, g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted,
                            self.parent, self.size)
-        parent = host_view(self.parent) if grid.n <= HOST_COUNT_MAX else None
+        parent = small_host_view(self.parent, grid.n)
         if parent is not None:  # a small swarm's roots counted in NumPy: a launch costs more than the count
             roots = parent == np.arange(grid.n, dtype=parent.dtype)
             sizes = host_view(self.size)[roots]

@@ -27,7 +27,7 @@ from collections.abc import Hashable, Mapping, Sequence
 import numpy as np
 import taichi as ti
 
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_view, small_host_view
 
 #: metrics that are order parameters: the sweep tables give their Binder cumulant and susceptibility
 ORDER_PARAMETERS = ("polarization", "phi_theta")
@@ -39,8 +39,6 @@ GNF_FINEST = {2: 256, 3: 32}
 PROFILE_BINS = 512
 BAND_SMOOTHING = 5
 BAND_THRESHOLD = 1.5
-#: up to this many agents (on the CPU), the counts are taken in NumPy: a kernel launch costs more
-HOST_COUNT_MAX = 4096
 
 
 # ---------------------------------------------------------------------------------------------------- statistics
@@ -94,11 +92,11 @@ def _axis_profile(n: ti.i32, per_replica: ti.i32, bins: ti.i32, scale: float, po
 def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, per_side: int, scale: float,
                axes: Sequence[int] | None) -> np.ndarray | None:
     """What :func:`box_counts` (`axes` None) or :func:`axis_profile` (bins along each replica's axis) count, with
-    NumPy on the arrays' host memory, for at most HOST_COUNT_MAX agents on the CPU (None otherwise): the same
+    NumPy on the arrays' host memory, for a small swarm on the CPU (:func:`small_host_view`; None otherwise): the same
     integer counts as the kernels (each coordinate times `scale` in the arrays' precision, truncated, clamped), with
     no kernel launch, which costs more than counting a small swarm."""
     n = pos.shape[1]
-    x = host_view(pos) if n <= HOST_COUNT_MAX else None
+    x = small_host_view(pos, n)
     if x is None:
         return None
     replica = host_view(ids)[:n] // per_replica if replicas > 1 else np.zeros(n, dtype=np.int64)

@@ -28,6 +28,11 @@ from taichi.lang.util import to_numpy_type
 _CPU_ARCHES = (_ti_core.Arch.x64, _ti_core.Arch.arm64)
 
 
+#: swarms of at most this many agents take their small passes over the state (counts, sums) in NumPy on host views
+#: (:func:`small_host_view`): on the CPU a kernel launch costs more than such a pass
+SMALL_SWARM_MAX = 4096
+
+
 def host_view(array: Any) -> np.ndarray | None:
     """A NumPy array over ``array``'s own memory (writes go to the ndarray), or None where there is none to
     share (GPU arches, elements that are vectors or matrices). Valid while ``array`` lives and until the next
@@ -49,6 +54,12 @@ def host_view(array: Any) -> np.ndarray | None:
     impl.get_runtime().prog.synchronize()  # CPU launches return when done; this keeps it so (0.6 us; the runtime's
     # sync() also materializes pending fields, 4 us, which a view of an ndarray does not need)
     return view
+
+
+def small_host_view(array: Any, agents: int) -> np.ndarray | None:
+    """:func:`host_view` of an array of a swarm of at most :data:`SMALL_SWARM_MAX` agents, else None: where a pass
+    is done in NumPy rather than by a kernel."""
+    return host_view(array) if agents <= SMALL_SWARM_MAX else None
 
 
 def host_array(array: Any) -> np.ndarray:

@@ -68,13 +68,11 @@ from tflock.neighbors import (
     stencil_span,
 )
 from tflock.space import OPEN
-from tflock.taichi_host import host_array, host_view
+from tflock.taichi_host import host_array, host_view, small_host_view
 
 #: a swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch (a fixed
 #: graph's, and a switching one's on the CPU), and its lane-wise metrics pass in two launches
 FUSED_MAX_N = 4096
-#: the velocity metrics of at most this many agents are computed in NumPy on the CPU (two launches cost more)
-HOST_STATS_MAX = 4096
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
@@ -622,14 +620,14 @@ def _lane_steps(steps: ti.i32, ready: ti.i32, side0: ti.i32, max_side: ti.i32, d
         builds = 0
         side = side0
         built = ready  # 0 nothing, 1 the grid of the current state, 2 and its accelerations
+        if ready == 1:  # a grid the host built: its runs may not be cut yet
+            cut_runs(side ** (dim - 1), side, start, run_end)
         stop = 0
         while stop == 0:
             if built == 0:
                 side = bounded_layout(n, dim, cell_size, max_side, pos, bounds)
                 if side > 0:
-                    cells = 1
-                    for _a in ti.static(range(dim)):
-                        cells *= side
+                    cells = side**dim
                     build_grid(pos, ids, n, n, box, cell_size, side, cells, cells, BOUNDED, dim, coords, bucket,
                                counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
                                block_start, bounds, anchor, by_rank)
@@ -643,13 +641,8 @@ def _lane_steps(steps: ti.i32, ready: ti.i32, side0: ti.i32, max_side: ti.i32, d
                     _move_all(n, dt, dim, id_sorted, pos_sorted, vel_sorted, accel, pos, vel, ids, False, bits,
                               word_rank, drawn)
                 else:
-                    cells = 1
-                    for _a in ti.static(range(dim)):
-                        cells *= side
-                    if ready == 1 and made == 0:  # a grid the host built: its runs may not be cut yet
-                        cut_runs(cells // side, side, start, run_end)
                     _gather_velocities(n, dim, order, vel, vel_sorted)
-                    _lanes_step(cells, side, r2cut, d2, dt, dim, BOUNDED, start, run_end, id_sorted, pos_sorted,
+                    _lanes_step(side**dim, side, r2cut, d2, dt, dim, BOUNDED, start, run_end, id_sorted, pos_sorted,
                                 vel_sorted, pos, vel, ids, False, bits, word_rank, drawn)
                 made += 1
                 built = 0
@@ -1036,7 +1029,7 @@ class Potential(GridModel):
         (the mean velocity, then the mismatch against it) and their block partials: no copy of the velocities; a
         small swarm's in NumPy on the velocities' host memory (:func:`velocity_stats`)."""
         n, dim = self.params.n, self.dim
-        v = host_view(self.vel) if n <= HOST_STATS_MAX else None
+        v = small_host_view(self.vel, n)
         if v is not None:
             return velocity_stats(v)
         partial = _block_partials((n_blocks(n), _velocity_columns(dim)), ti.f64)
