@@ -231,6 +231,24 @@ def test_frame_draws_the_graph(engine):
     assert frame.positions.shape == (30, 3) and 0 < len(frame.edges) <= 50
 
 
+def test_fixed_frame_rows_in_numpy_are_the_kernels(engine, monkeypatch):
+    """A small swarm's frame rows (fixed graph), gathered in NumPy on the arrays' host memory, are the gather
+    kernel's, for drawn agents in any order."""
+    import tflock.taichi_host as taichi_host
+
+    cfg = config(n=12, topology="fixed", graph="ring")
+    model = Potential(cfg.params, cfg.seed, engine)
+    model.advance(7)
+    drawn = np.array([11, 3, 0, 7, 5])
+    small = model.frame(drawn, 100)
+    monkeypatch.setattr(taichi_host, "SMALL_SWARM_MAX", 0)
+    kernel = model.frame(drawn, 100)
+    for name in ("positions", "directions", "colors", "edges"):
+        np.testing.assert_array_equal(getattr(small, name), getattr(kernel, name), err_msg=name)
+    x = model.state()["x"]
+    assert np.allclose(small.positions, x[drawn], atol=1e-6)
+
+
 @pytest.mark.skipif(ARCH != "cpu", reason="GPU arches keep the hashed grid")
 def test_step_matches_reference_in_both_layouts(engine):
     """The switching step on a bounded grid (the swarm's bounding box: 2D runs lane-wise on the CPU) and, with one

@@ -1062,11 +1062,11 @@ class Potential(GridModel):
     def metrics(self) -> dict[str, float]:
         p = self.params
         n = p.n
-        self._ensure_grid()
         self._pair_energies()
         components = 1.0  # a fixed graph: validated connected
         if not self.switching:
-            if n > EXACT_PAIRS_MAX:
+            if n > EXACT_PAIRS_MAX:  # the R-graph's valency and energy beside the fixed graph's; else no grid
+                self._ensure_grid()
                 self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
             _exact_nearest(n, self.dim, self.pos, self.nearest)
@@ -1109,10 +1109,16 @@ class Potential(GridModel):
 
     def _rows(self, agents: np.ndarray) -> np.ndarray:
         """(m, 2 dim) rows x, v of the given agents."""
-        m = len(agents)
+        m, n = len(agents), self.params.n
+        x = small_host_view(self.pos, n)
+        if x is not None:  # a small swarm's rows in NumPy on the arrays' host memory: no launch
+            where = np.empty(n, dtype=np.int64)
+            where[host_view(self.ids)[:n]] = np.arange(n)
+            e = where[np.asarray(agents, dtype=np.int64)]
+            return np.concatenate([x[:, e], host_view(self.vel)[:, e]]).T.astype(np.float64)
         out = np.zeros((m, 2 * self.dim), dtype=self.engine.real)  # NumPy arrays: no copy kernels on the CPU
         if m:
-            _gather(m, self.params.n, self.dim, np.ascontiguousarray(agents, dtype=np.int32), self.ids, self._where,
+            _gather(m, n, self.dim, np.ascontiguousarray(agents, dtype=np.int32), self.ids, self._where,
                     self.pos, self.vel, out)
         return out.astype(np.float64)
 
