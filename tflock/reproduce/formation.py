@@ -331,7 +331,8 @@ class Formation(Experiment):
                          + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
         converged, total = int(round((paper["converged_fraction"] * paper["replicas"]).sum())), paper["replicas"].sum()
         checks.append((f"the six configurations reach the DF in every run (the paper selected them so): "
-                       f"{converged} of {total} runs do ({proportion_ci(converged, total).short(2)})", bool(converged == total)))
+                       f"{converged} of {total} runs do ({proportion_ci(converged, total).short(2)})",
+                       bool(converged == total)))
         bounds = {"tau": (871.0, 1971.0), "phi": (0.09, 0.36), "rho": (5.20, 13.88)}
         for q, (low, high) in bounds.items():
             meet = [self._estimate(r, q).overlaps(low, high) for _, r in paper.iterrows()]
