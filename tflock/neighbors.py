@@ -331,7 +331,9 @@ def build_grid(pos: ti.template(), ids: ti.template(), n, per_replica, box, cell
                 v = order[k]
                 key = ids[v]
                 m = k
-                while m > lo and ids[order[m - 1]] > key:
+                while m > lo:  # Taichi's `and` evaluates both sides: order[m - 1] is read only while m > lo
+                    if ids[order[m - 1]] <= key:
+                        break
                     order[m] = order[m - 1]
                     m -= 1
                 order[m] = v
