@@ -46,11 +46,16 @@ def runs_of(counts_row: np.ndarray) -> list[tuple[int, int, int]]:
     return out
 
 
+def cells_of(x: np.ndarray, box: float, per_side: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each agent's cell (column, row) for cells of side box / per_side, and the agents per cell (row, column)."""
+    cell = np.minimum((x / (box / per_side)).astype(np.int64), per_side - 1)
+    counts = np.bincount(cell[:, 1] * per_side + cell[:, 0], minlength=per_side * per_side)
+    return cell, counts.reshape(per_side, per_side)
+
+
 def stencil_iterations(x: np.ndarray, box: float, per_side: int, reach: int) -> dict[str, float]:
     """Lane iterations, blocks and lane use for cells of side box / per_side and a stencil of +-reach cells."""
-    cell = np.minimum((x / (box / per_side)).astype(np.int64), per_side - 1)
-    counts = np.zeros((per_side, per_side), np.int64)
-    np.add.at(counts, (cell[:, 1], cell[:, 0]), 1)
+    _, counts = cells_of(x, box, per_side)
     padded = np.pad(counts, reach, mode="wrap")  # periodic
     rows = sum(padded[reach + d: reach + d + per_side, :] for d in range(-reach, reach + 1))
     prefix = np.concatenate([np.zeros((per_side, 1), np.int64), np.cumsum(rows, axis=1)], axis=1)
@@ -66,11 +71,10 @@ def stencil_iterations(x: np.ndarray, box: float, per_side: int, reach: int) -> 
 
 def x_sorted_iterations(x: np.ndarray, box: float, per_side: int, radius: float) -> dict[str, float]:
     """Lane iterations of cells of side R sorted by x, each block's scan cut to its x-window (inner cells only)."""
-    cs = box / per_side
-    cell = np.minimum((x / cs).astype(np.int64), per_side - 1)
+    cell, counts = cells_of(x, box, per_side)
+    counts = counts.ravel()
     order = np.lexsort((x[:, 0], cell[:, 0], cell[:, 1]))  # row, then column, then x
     xs = x[order, 0]
-    counts = np.bincount(cell[:, 1] * per_side + cell[:, 0], minlength=per_side * per_side)
     start = np.concatenate([[0], np.cumsum(counts)])
     iterations = today = blocks = 0
     for r in range(1, per_side - 1):
