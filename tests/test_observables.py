@@ -100,6 +100,27 @@ def test_number_fluctuations_of_a_density_wave_grow_as_the_mean():
     assert a == pytest.approx(1.0, abs=0.1)
 
 
+@pytest.mark.parametrize("dim,m", [(2, 256), (2, 16), (3, 32), (3, 4)])
+def test_number_fluctuations_are_the_standard_deviations_of_the_counts(dim, m):
+    """Each level's deviation (taken in integers) is NumPy's two-pass std of the summed counts, and the exponent
+    the least-squares slope of their logs, for counts from empty boxes to thousands of agents a box."""
+    rng = np.random.default_rng(dim * m)
+    counts = rng.poisson(rng.uniform(0.05, 2000.0, (m,) * dim))
+    std, a = number_fluctuations(counts)
+    levels = [m >> k for k in range(int(math.log2(m // 4)) + 1)]
+    assert list(std) == levels
+    c, means = counts.astype(np.int64), []
+    for level in levels:
+        assert std[level] == pytest.approx(float(c.std()), rel=1e-13)
+        means.append(counts.sum() / level**dim)
+        c = c.reshape(sum(((level // 2, 2) for _ in range(dim)), ())).sum(axis=tuple(range(1, 2 * dim, 2)))
+    if len(levels) > 1:
+        slope = np.polyfit(np.log(means), np.log([std[level] for level in levels]), 1)[0]
+        assert a == pytest.approx(slope, rel=1e-10)
+    else:
+        assert math.isnan(a)
+
+
 def test_a_lattice_has_no_number_fluctuations():
     xs, ys = np.meshgrid(np.arange(32) + 0.5, np.arange(32) + 0.5)
     std, a = number_fluctuations(box_counts_np(np.stack([xs.ravel(), ys.ravel()], axis=1), 32.0, 16))

@@ -39,6 +39,7 @@ GNF_FINEST = {2: 256, 3: 32}
 PROFILE_BINS = 512
 BAND_SMOOTHING = 5
 BAND_THRESHOLD = 1.5
+_SMOOTHING = np.ones(BAND_SMOOTHING) / BAND_SMOOTHING
 
 
 # ---------------------------------------------------------------------------------------------------- statistics
@@ -101,7 +102,8 @@ def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
         return None
     replica = host_view(ids)[:n] // per_replica if replicas > 1 else np.zeros(n, dtype=np.int64)
     with np.errstate(invalid="ignore"):  # a non-finite coordinate counts in the first box, as in the kernels
-        cells = np.clip((x[:, :n] * x.dtype.type(scale)).astype(np.int64), 0, per_side - 1)  # truncated
+        cells = (x[:, :n] * x.dtype.type(scale)).astype(np.int64)  # truncated
+    np.maximum(np.minimum(cells, per_side - 1, out=cells), 0, out=cells)  # clamped (np.clip's wrapper costs more)
     if axes is None:
         index = np.zeros(n, dtype=np.int64)
         for a in range(x.shape[0] - 1, -1, -1):  # row-major, the last axis slowest
@@ -164,22 +166,27 @@ def gnf_levels(n: int, dim: int, box: float) -> list[int]:
 def number_fluctuations(counts: np.ndarray) -> tuple[dict[int, float], float]:
     """From one system's finest box counts (m, ..., m): the standard deviation of the count for each M = m, m/2,
     ... >= GNF_COARSEST, and the exponent a of Delta N ~ <N>^a fitted (least squares, logs) over those M (NaN with
-    fewer than two, or a zero deviation)."""
+    fewer than two, or a zero deviation). Each deviation is exact but for its last rounding: the counts' sum of
+    squares in integers, so the variance (K sum c^2 - (sum c)^2) / K^2 has no cancellation error."""
     dim, m = counts.ndim, counts.shape[0]
-    std = {}
     c = np.asarray(counts, dtype=np.int64)
+    total = int(c.sum())
+    std = {}
     while m >= GNF_COARSEST:
-        std[m] = float(c.std())
+        flat = c.reshape(-1)
+        boxes = flat.size
+        std[m] = math.sqrt(int(flat @ flat) * boxes - total * total) / boxes
         m //= 2
         c = c.reshape(sum(((m, 2) for _ in range(dim)), ())).sum(axis=tuple(range(1, 2 * dim, 2)))
-    total = float(np.asarray(counts).sum())
-    means = np.array([total / k**dim for k in std])
-    dev = np.array(list(std.values()))
-    if len(std) < 2 or not (dev > 0).all():
+    if len(std) < 2 or min(std.values()) <= 0.0:
         return std, math.nan
-    x, y = np.log(means), np.log(dev)
-    x = x - x.mean()  # least-squares slope in closed form (np.polyfit's general solver costs a small swarm's pass)
-    return std, float((x * (y - y.mean())).sum() / (x * x).sum())
+    # least-squares slope of log std against log mean, in closed form over these few levels (NumPy's calls cost
+    # more than the arithmetic: a small swarm takes this at every metrics step)
+    x = [math.log(total / k**dim) for k in std]
+    y = [math.log(v) for v in std.values()]
+    x_mean, y_mean = sum(x) / len(x), sum(y) / len(y)
+    dx = [v - x_mean for v in x]
+    return std, sum(a * (b - y_mean) for a, b in zip(dx, y, strict=True)) / sum(a * a for a in dx)
 
 
 def band_statistics(hist: np.ndarray, periodic: bool) -> tuple[float, float, np.ndarray]:
@@ -187,14 +194,17 @@ def band_statistics(hist: np.ndarray, periodic: bool) -> tuple[float, float, np.
     in units of the mean (see the module)."""
     density = np.asarray(hist, dtype=np.float64) / max(float(np.mean(hist)), 1e-300)
     half = BAND_SMOOTHING // 2
-    if periodic:
-        padded = np.concatenate([density[-half:], density, density[:half]])
-    else:  # the edge values repeated (np.pad's "edge" mode, which costs several times this)
-        padded = np.concatenate([np.full(half, density[0]), density, np.full(half, density[-1])])
-    smooth = np.convolve(padded, np.ones(BAND_SMOOTHING) / BAND_SMOOTHING, mode="valid")
+    padded = np.empty(len(density) + 2 * half)  # wrapped round a periodic box, else the edge values repeated
+    padded[half:-half] = density
+    padded[:half] = density[-half:] if periodic else density[0]
+    padded[-half:] = density[:half] if periodic else density[-1]
+    smooth = np.convolve(padded, _SMOOTHING, mode="valid")
     high = smooth > BAND_THRESHOLD
-    starts = high & ~np.roll(high, 1) if periodic else high & ~np.concatenate([[False], high[:-1]])
-    peaks = int(starts.sum()) if not (periodic and high.all()) else 0
+    before = np.empty_like(high)  # each bin's left neighbour: the last bin in a periodic box, none at a wall
+    before[1:] = high[:-1]
+    before[0] = high[-1] and periodic
+    starts = np.count_nonzero(high > before)  # a run of high bins starts where its left neighbour is not high
+    peaks = starts if not (periodic and high.all()) else 0
     return float(peaks), float(smooth.max() - smooth.min()), smooth
 
 
