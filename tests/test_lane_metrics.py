@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import ARCH, PRECISION
 
+from tflock import lane_graph
 from tflock import reference as ref
 from tflock.config import load_config
 from tflock.lane_graph import LaneComponents
@@ -46,8 +47,14 @@ def assert_graph_metrics(got, expected):
     assert got["mean_neighbors"] == pytest.approx(expected["mean_neighbors"], abs=1e-9)
 
 
+@pytest.fixture
+def striped(monkeypatch):
+    """Swarms of these tests' sizes cut into stripes, as larger ones are (a small swarm is one stripe)."""
+    monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
+
+
 @pytest.mark.parametrize(("n", "box", "boundary", "rule"), CASES)
-def test_lane_wise_metrics_match_reference(engine, n, box, boundary, rule):
+def test_lane_wise_metrics_match_reference(engine, striped, n, box, boundary, rule):
     cfg = config(n, box, boundary, rule)
     model = Vicsek(cfg.params, cfg.seed, engine)
     assert model.components is not None  # the lane-wise path
@@ -95,12 +102,16 @@ def test_an_agent_joining_separate_sets(engine, teeth):
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3, 7])
-def test_stripes_do_not_change_the_partition(engine, threads):
+def test_stripes_do_not_change_the_partition(engine, monkeypatch, threads):
     cfg = config(2500, 34.0)
     model = Vicsek(cfg.params, cfg.seed, engine)
     model.advance(12)
     expected = expected_graph(model)
     model.components = LaneComponents(model.grid, threads)
+    assert model.components.stripes()[0] == 1  # a small swarm: one stripe
+    assert_graph_metrics(model.metrics(), expected)
+    monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
+    model.invalidate()
     assert model.components.stripes()[0] == min(8 * threads, 34 // 4)
     assert_graph_metrics(model.metrics(), expected)
 
@@ -110,6 +121,7 @@ def test_roots_counted_on_the_host_and_by_the_kernel_agree(engine, monkeypatch):
     (SMALL_SWARM_MAX = 0) gives the same numbers: many clusters, several stripes."""
     import tflock.taichi_host as taichi_host
 
+    monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
     cfg = config(2500, 34.0)
     model = Vicsek(cfg.params, cfg.seed, engine)
     model.advance(12)

@@ -347,12 +347,14 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
     components by stripes of grid layers and their cross-stripe joins) gives the oracle's numbers, and the steps
     after it are bit for bit those of a run without metrics: many small clusters, and one dense cluster. Both the
     small swarm's pass in one launch (the components as one stripe) and the striped pass of larger swarms
-    (FUSED_MAX_N = 0 here)."""
+    (FUSED_MAX_N = ONE_STRIPE_MAX = 0 here)."""
+    import tflock.lane_graph as lane_graph
     import tflock.models.potential as potential
     from tflock.neighbors import BOUNDED
 
     if not one_launch:
         monkeypatch.setattr(potential, "FUSED_MAX_N", 0)
+        monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
 
     x, v, side = _lane_pass_state(dim, shape)
     n = len(x)

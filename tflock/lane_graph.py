@@ -4,18 +4,18 @@ A model's lane-wise CPU kernel already compares every candidate with ``LANES`` a
 neighbours. :class:`LaneComponents` lets that same pass find the connected components of the graph
 |x_i - x_j| <= R, so a metrics pass costs little more than the neighbour sums the next step needs anyway.
 
-The grid's layers (the last cell coordinate, and the replica) are cut into stripes of consecutive layers; each
-stripe is one task, its runs of cells taken in slot order by one thread. Every agent of a stripe is settled when its
-block of lanes closes: it joins the sets of its neighbours at smaller slots in the same stripe (all settled before
-it), so in the vector loop a block only keeps, per lane, the set label (:func:`candidate_label`) its near candidates
-before it in the stripe share, or MIXED (:func:`fold_label`), and a bit mask of the near agents of its own block.
-A span of candidates that carries one label (nearly every span inside a flock) folds it once, into the lanes that
-found one of them near (:func:`span_labels`), instead of once per candidate. After the loop the
-block's lanes find their roots: from the shared label (almost always) with one scalar step, or when MIXED by
-re-reading the lane's candidates and joining each one's set (:func:`block_roots`, :func:`join_candidate`); then
-the lanes within R of each other join those roots into one set (:func:`settle_block`). This phase writes only
-parents of its own stripe's slots, so it needs no atomics; a parent always points to a smaller slot, so each set's
-root is its smallest slot.
+The grid's layers (the last cell coordinate, and the replica) are cut into stripes of consecutive layers (one stripe
+for a small swarm); each stripe is one task, its runs of cells taken in slot order by one thread. Every agent of a
+stripe is settled when its block of lanes closes: it joins the sets of its neighbours at smaller slots in the same
+stripe (all settled before it), so in the vector loop a block only keeps, per lane, the set label
+(:func:`candidate_label`) its near candidates before it in the stripe share, or MIXED (:func:`fold_label`), and a
+bit mask of the near agents of its own block. A span of candidates that carries one label (nearly every span inside
+a flock) folds it once, into the lanes that found one of them near (:func:`span_labels`), instead of once per
+candidate. After the loop the block's lanes find their roots: from the shared label (almost always) with one scalar
+step, or when MIXED by re-reading the lane's candidates and joining each one's set (:func:`block_roots`,
+:func:`join_candidate`); then the lanes within R of each other join those roots into one set (:func:`settle_block`).
+This phase writes only parents of its own stripe's slots, so it needs no atomics; a parent always points to a
+smaller slot, so each set's root is its smallest slot.
 
 Pairs whose agents lie in two stripes (neighbouring layers at a stripe's edge, and a periodic grid's wrap) are
 joined afterwards by :meth:`LaneComponents.finish` in one serial pass over the stripes' edge layers (a few per cent
@@ -29,7 +29,7 @@ import taichi as ti
 
 from tflock.neighbors import LANES, CellGrid, load_cell, load_vec, span_agents, span_count, stencil_span
 from tflock.space import displacement
-from tflock.taichi_host import host_view, small_host_view
+from tflock.taichi_host import SMALL_SWARM_MAX, host_view, small_host_view
 
 #: no candidate seen: the initial smallest label of a lane
 NO_LABEL = 2**31 - 1
@@ -39,6 +39,9 @@ MIXED = -1
 STRIPES_PER_THREAD = 8
 #: layers a stripe holds at least (its edge layers are joined in a second, scalar pass)
 MIN_STRIPE_LAYERS = 4
+#: agents (replicas counted together) up to which the grid is one stripe: for a small swarm the join across
+#: stripes, one more launch, costs more than a second thread gains
+ONE_STRIPE_MAX = SMALL_SWARM_MAX
 LANE_BITS = LANES.bit_length() - 1  # log2(LANES)
 
 
@@ -256,11 +259,14 @@ class LaneComponents:
         self.result = np.zeros(2, dtype=np.int32)
 
     def stripes(self) -> tuple[int, int, int]:
-        """``(n_stripes, layers, layer_buckets)`` for the grid's current layout."""
+        """``(n_stripes, layers, layer_buckets)`` for the grid's current layout (one stripe up to ONE_STRIPE_MAX
+        agents)."""
         g = self.grid.geometry
         layer_buckets = g.cells_per_side ** (g.dim - 1)
         layers = g.total_buckets // layer_buckets
         n_stripes = max(1, min(STRIPES_PER_THREAD * self.threads, layers // MIN_STRIPE_LAYERS))
+        if self.grid.n <= ONE_STRIPE_MAX:
+            n_stripes = 1
         return n_stripes, layers, layer_buckets
 
     def finish(self, r2: float, box: float, metric: int, strict: bool = False) -> tuple[int, int]:
