@@ -215,13 +215,19 @@ def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) 
                  path=tmp_path / "x.rrd")
 
 
+#: what a frame draws (the legend's entities, logged once, aside)
+FRAME_ENTITIES = ("/world/agents", "/world/edges", "/profiles", "/world/leader", "/world/virtual_agent")
+#: the components of a frame that change from step to step (the rest are styles, logged when they change)
+PER_STEP = ("positions", "colors", "origins", "vectors", "strips", "values")
+
+
 def _frame_rows(path: Path) -> dict[tuple[str, int, str], object]:
     """Every (entity, step, component) value of a recording's frames, whatever chunks hold them."""
     from rerun.chunk import RrdReader
 
     rows = {}
     for chunk in RrdReader(path).stream():
-        if not chunk.entity_path.startswith(("/world/agents", "/world/edges", "/profiles")) or not chunk.num_rows:
+        if not chunk.entity_path.startswith(FRAME_ENTITIES) or not chunk.num_rows:
             continue
         batch = chunk.to_record_batch()
         if "step" not in batch.schema.names:
@@ -272,7 +278,7 @@ def test_gathered_frames_hold_what_frames_logged_one_by_one_hold(tmp_path: Path,
 
 @pytest.mark.parametrize("model, params", [
     ("vicsek", {"n": 60, "box": 5.0}),
-    ("vicsek", {"n": 60, "box": 5.0, "async_bound": 3}),
+    ("vicsek", {"n": 60, "box": 5.0, "async_bound": 3, "leader": {"enabled": True}}),
     ("potential", {"n": 40}),
     ("formation", {}),
     ("adaptive", {"n": 60, "dim": 3, "box": 4.0}),
@@ -281,7 +287,8 @@ def test_every_model_records_the_same_frames_gathered(tmp_path: Path, monkeypatc
                                                       params: dict) -> None:
     """The models' own frames (arrays a step may write in place, host views) recorded through the gathered
     columns hold, at every step, what logging each frame at once holds: no frame's arrays change after it is
-    handed over."""
+    handed over. The leader and the virtual agent (its point, heading and circle) too, their styles (colours,
+    radii, labels, draw order) logged once, at the first frame."""
     import tflock
     import tflock.record as record
 
@@ -295,9 +302,23 @@ def test_every_model_records_the_same_frames_gathered(tmp_path: Path, monkeypatc
     run(tmp_path / "one-by-one.rrd", 0)
     run(tmp_path / "gathered.rrd", 10**6)
     one, gathered = _frame_rows(tmp_path / "one-by-one.rrd"), _frame_rows(tmp_path / "gathered.rrd")
-    per_step = {k: v for k, v in one.items() if not k[2].endswith(("radii", "draw_order"))
-                and not (k[0] == "/world/edges" and k[2].endswith("colors"))}
+    shapes = ("/world/leader", "/world/virtual_agent")
+
+    def style(entity: str, name: str) -> bool:
+        if entity.startswith(shapes):
+            return not name.endswith(PER_STEP) or name.endswith("colors")
+        return name.endswith(("radii", "draw_order")) or (entity == "/world/edges" and name.endswith("colors"))
+
+    per_step = {k: v for k, v in one.items() if not style(k[0], k[2])}
     assert per_step and all(gathered.get(k) == v for k, v in per_step.items())
+    styles = {(e, n): v for (e, t, n), v in one.items() if style(e, n)}
+    assert all(gathered[(e, 0, n)] == v for (e, n), v in styles.items())  # the same at every step: logged once
+    expected = set()
+    if "leader" in params:
+        expected = {"/world/leader", "/world/leader/heading"}
+    elif model == "formation":
+        expected = {"/world/virtual_agent", "/world/virtual_agent/heading", "/world/virtual_agent/range"}
+    assert {e for e, t, n in one if e.startswith(shapes)} == expected
     positions = [one[("/world/agents", t, n)] for (e, t, n) in sorted(one) if e == "/world/agents"
                  and n.endswith("positions")]
     assert len(positions) == 13 and positions[0] != positions[-1]

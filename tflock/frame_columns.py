@@ -7,11 +7,14 @@ profiles' bar charts) and sends each entity's rows with one ``send_columns`` cal
 at once, then every :data:`GATHER_FRAMES` frames or :data:`GATHER_S` seconds after the first one waiting, and
 whenever the recorder flushes or closes (so a run stopped with Ctrl-C keeps every frame it drew). The recording
 holds the same rows on the same timelines as one log call per frame would write; what does not change from frame to
-frame (point radii, draw order, the edges' colour) is logged by the recorder when it changes.
+frame (point radii, draw order, the edges' colour) is logged by the recorder when it changes. A frame's other
+shapes (the leader, markers such as the virtual agent and its circle) are gathered the same way, each entity's
+per-step components (positions, arrow vectors, strips) in its own columns.
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import NamedTuple
 
@@ -26,6 +29,26 @@ GATHER_AGENTS = 2048
 #: gathered frames are sent after this many, or this many seconds after the first one waiting (Rerun's own batcher
 #: writes what it holds every 0.2 s: a run killed outright loses at most about twice that)
 GATHER_FRAMES, GATHER_S = 256, 0.2
+
+
+@functools.cache
+def _strips_type(dim: int) -> pa.DataType:
+    """Arrow type of a LineStrip2D/3D batch, taken from an empty batch (the public way to get it)."""
+    batch = rr.components.LineStrip2DBatch if dim == 2 else rr.components.LineStrip3DBatch
+    return batch(np.zeros((0, 2, dim), np.float32)).as_arrow_array().type
+
+
+def line_strips(points: np.ndarray) -> pa.ListArray:
+    """An (S, K, dim) float32 array as S line strips of K points each, built directly in Arrow.
+
+    Equal to what ``LineStrips2D(points)`` builds, but that path computes the offsets in a Python loop, one
+    iteration a strip; here they are one NumPy range.
+    """
+    n, k, dim = points.shape
+    strips_type = _strips_type(dim)
+    flat = pa.FixedSizeListArray.from_arrays(pa.array(points.reshape(-1)), type=strips_type.value_type)
+    offsets = pa.array(np.arange(0, k * n + 1, k, dtype=np.int32))
+    return pa.ListArray.from_arrays(offsets, flat, type=strips_type)
 
 
 def bar_chart_rows(values: np.ndarray) -> pa.Array:
@@ -43,6 +66,24 @@ def bar_chart_rows(values: np.ndarray) -> pa.Array:
     return pa.StructArray.from_arrays([shape, names, buffer], fields=list(dtype))
 
 
+class Shape(NamedTuple):
+    """One entity's per-step components in a frame: ``archetype.columns(**data)`` for one step, where the data are
+    (k, dim) f32 arrays (``positions``; ``origins`` and ``vectors``) or (S, K, dim) line strips (``strips``)."""
+
+    archetype: type  # rr.Points2D/3D, rr.Arrows2D/3D or rr.LineStrips2D/3D
+    data: dict[str, np.ndarray]
+
+
+def _shape_columns(shapes: list[Shape]) -> tuple[object, list[int]]:
+    """The columns of one entity's shapes over several steps, and each step's rows."""
+    archetype = shapes[0].archetype
+    if "strips" in shapes[0].data:
+        strips = [s.data["strips"] for s in shapes]
+        return archetype.columns(strips=line_strips(np.concatenate(strips))), [len(a) for a in strips]
+    data = {name: np.concatenate([s.data[name] for s in shapes]) for name in shapes[0].data}
+    return archetype.columns(**data), [len(next(iter(s.data.values()))) for s in shapes]
+
+
 class _Gathered(NamedTuple):
     """One frame's per-step parts."""
 
@@ -50,8 +91,9 @@ class _Gathered(NamedTuple):
     positions: np.ndarray  # (m, dim) f32
     colors: np.ndarray  # (m,) packed RGBA
     vectors: np.ndarray  # (m, dim) f32
-    strips: pa.ListArray | None  # the edges, None where the frame draws none
+    edges: np.ndarray | None  # (E, 2, dim) f32, None where the frame draws none
     profiles: dict[str, np.ndarray]  # bar chart values (f32)
+    shapes: dict[str, Shape]  # the frame's other entities
 
 
 class FrameColumns:
@@ -67,17 +109,18 @@ class FrameColumns:
         self._first = True  # the first frame goes at once: a viewer shows the run from its start
 
     def add(self, step: int, positions: np.ndarray, colors: np.ndarray, vectors: np.ndarray,
-            strips: pa.ListArray | None, profiles: dict[str, np.ndarray]) -> None:
-        """Keep one frame (`strips`: its edges, None where the frame draws none); sent when due. The frame joins
-        the others in one list append, so an interrupt (Ctrl-C) leaves it either kept whole or not at all."""
+            edges: np.ndarray | None, profiles: dict[str, np.ndarray], shapes: dict[str, Shape]) -> None:
+        """Keep one frame (`edges`: (E, 2, dim) f32 segments, None where the frame draws none; `shapes`: its other
+        entities' per-step components); sent when due. The frame joins the others in one list append, so an
+        interrupt (Ctrl-C) leaves it either kept whole or not at all."""
         bars = {name: np.asarray(values, dtype=np.float32) for name, values in profiles.items()}
         gathered = self._gathered
-        shapes = {name: len(values) for name, values in bars.items()}
-        if self._sent or gathered and shapes != {name: len(v) for name, v in gathered[0].profiles.items()}:
+        bins = {name: len(values) for name, values in bars.items()}
+        if self._sent or gathered and bins != {name: len(v) for name, v in gathered[0].profiles.items()}:
             self.send()  # a send left unfinished, or another set of bar charts: the gathered frames go first
         if not self._gathered:
             self._since = time.monotonic()
-        self._gathered.append(_Gathered(int(step), positions, colors, vectors, strips, bars))
+        self._gathered.append(_Gathered(int(step), positions, colors, vectors, edges, bars, dict(shapes)))
         if self._first or len(self._gathered) >= GATHER_FRAMES or time.monotonic() - self._since >= GATHER_S:
             self._first = False
             self.send()
@@ -102,15 +145,24 @@ class FrameColumns:
             headings: lambda: Arrows.columns(origins=positions, vectors=np.concatenate([f.vectors for f in frames]),
                                              colors=colors).partition(sizes),
         }
-        drawn = [f.strips for f in frames if f.strips is not None]
-        if drawn:
-            columns[edges] = lambda: Strips.columns(strips=pa.concat_arrays(drawn)).partition(
-                [0 if f.strips is None else len(f.strips) for f in frames])
+        drawn = [f.edges for f in frames if f.edges is not None]
+        if drawn:  # the strips of all frames built at once: building them costs more than their points
+            columns[edges] = lambda: Strips.columns(strips=line_strips(np.concatenate(drawn))).partition(
+                [0 if f.edges is None else len(f.edges) for f in frames])
         for name in frames[0].profiles:
             columns[f"{profiles}/{name}"] = lambda name=name: rr.BarChart.columns(
                 values=bar_chart_rows(np.stack([f.profiles[name] for f in frames])))
         for entity, column in columns.items():
             if entity not in self._sent:
                 self.rec.send_columns(entity, indexes=indexes, columns=column())
+                self._sent.add(entity)
+        for entity in dict.fromkeys(name for f in frames for name in f.shapes):  # in the order they were drawn
+            if entity not in self._sent:
+                having = [f for f in frames if entity in f.shapes]  # steps that did not draw it keep what was drawn
+                at = np.asarray([f.step for f in having], dtype=np.int64)
+                rows, sizes = _shape_columns([f.shapes[entity] for f in having])
+                self.rec.send_columns(entity, indexes=[rr.TimeColumn("step", sequence=at),
+                                                       rr.TimeColumn("time", duration=at * self.dt)],
+                                      columns=rows.partition(sizes))
                 self._sent.add(entity)
         self._gathered, self._sent = [], set()

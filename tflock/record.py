@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import functools
 import math
 import os
 import re
@@ -45,7 +44,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO
+from typing import IO, Any
 from urllib.parse import quote
 
 import numpy as np
@@ -55,7 +54,7 @@ import rerun.blueprint as rrb
 
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
 from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
-from tflock.frame_columns import GATHER_AGENTS, FrameColumns
+from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips
 
 __all__ = [
     "BOUNDARIES",
@@ -95,6 +94,9 @@ EDGE_COLOR = (200, 200, 200, 110)
 BOUNDS_COLOR = (200, 200, 200)
 #: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
 DRAW_FIELD, DRAW_EDGES, DRAW_TRAILS, DRAW_ARROWS, DRAW_AGENTS, DRAW_MARKERS = -20.0, 0.0, 5.0, 10.0, 20.0, 30.0
+#: a marker's circle: 97 points round the unit circle, the last on the first
+_UNIT_ANGLES = np.linspace(0.0, 2 * math.pi, 97, dtype=np.float32)
+_UNIT_CIRCLE = np.stack([np.cos(_UNIT_ANGLES), np.sin(_UNIT_ANGLES)], axis=1)
 #: screen pixels a unit of the colours view at the default layout (about 45 at 1280 x 800 and 1600 x 1000)
 LEGEND_PX = 45.0
 #: how far a legend's text label is raised above the row it names, in legend units: the viewer hangs a point's label
@@ -131,26 +133,6 @@ def _f32(name: str, a: np.ndarray, shape: tuple[int | None, ...]) -> np.ndarray:
         want = "(" + ", ".join("M" if s is None else str(s) for s in shape) + ")"
         raise ValueError(f"Frame.{name} must have shape {want}, got {arr.shape}")
     return arr
-
-
-@functools.cache
-def _strips_type(dim: int) -> pa.DataType:
-    """Arrow type of a LineStrip2D/3D batch, taken from an empty batch (the public way to get it)."""
-    batch = rr.components.LineStrip2DBatch if dim == 2 else rr.components.LineStrip3DBatch
-    return batch(np.zeros((0, 2, dim), np.float32)).as_arrow_array().type
-
-
-def _strips(points: np.ndarray) -> pa.ListArray:
-    """An (S, K, dim) float32 array as S line strips of K points each, built directly in Arrow.
-
-    Equal to what ``LineStrips2D(points)`` builds, but that path computes the offsets in a Python loop, one
-    iteration a strip; here they are one NumPy range.
-    """
-    n, k, dim = points.shape
-    strips_type = _strips_type(dim)
-    flat = pa.FixedSizeListArray.from_arrays(pa.array(points.reshape(-1)), type=strips_type.value_type)
-    offsets = pa.array(np.arange(0, k * n + 1, k, dtype=np.int32))
-    return pa.ListArray.from_arrays(offsets, flat, type=strips_type)
 
 
 def point_radius(drawn: int) -> float:
@@ -356,6 +338,7 @@ class Recorder:
         self._pending: dict[str, tuple[list[int], list[float]]] = {}  # metric rows not yet handed to Rerun
         self._pending_rows, self._pending_since = 0, time.monotonic()
         self._styles: float | None = None  # point radius of the styles logged for gathered frames
+        self._shape_styles: dict[str, str] = {}  # the style logged for each of the gathered frames' other shapes
 
         sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
@@ -626,7 +609,6 @@ class Recorder:
         draw_edges = edges is not None or self._edges_drawn  # an empty batch clears edges drawn at earlier steps
         if draw_edges and edges is None:
             edges = np.zeros((0, 2, dim), dtype=np.float32)
-        strips = _strips(edges) if draw_edges else None
         gather = pos.shape[0] <= GATHER_AGENTS
         if gather:  # the per-step parts wait in self._frames; the styles are logged here when they change
             if self._styles != radius:
@@ -641,7 +623,7 @@ class Recorder:
             rec.log(AGENTS, Points(pos, colors=colors, **agent_style))
             rec.log(HEADINGS, Arrows(origins=pos, vectors=vectors, colors=colors, **arrow_style))
             if draw_edges:
-                rec.log(EDGES, Strips(strips, **edge_style))
+                rec.log(EDGES, Strips(line_strips(edges), **edge_style))
         self._edges_drawn = draw_edges
         if frame.arrow_length != self._arrow_length:  # scene length of a full-speed arrow, logged when it changes
             rec.log(HEADINGS, rr.AnyValues(arrow_length=float(frame.arrow_length)))
@@ -649,11 +631,13 @@ class Recorder:
         if self.trail:
             self._log_trail(pos, colors, Strips)
         markers = {"draw_order": DRAW_MARKERS} if dim == 2 else {}
+        shapes: dict[str, Shape] | None = {} if gather else None
         if frame.leader is not None or self._leader_drawn:
             lead = np.zeros((0, dim), np.float32)
             if frame.leader is not None:
                 lead = _f32("leader", np.reshape(frame.leader, (1, -1)), (1, dim))
-            rec.log(LEADER, Points(lead, colors=LEADER_COLOR, radii=rr.Radius.ui_points(2.5 * radius), **markers))
+            self._draw(shapes, LEADER, Points, {"positions": lead},
+                       {"colors": LEADER_COLOR, "radii": rr.Radius.ui_points(2.5 * radius), **markers})
             self._leader_drawn = True
             has_heading = frame.leader is not None and frame.leader_direction is not None
             if has_heading or self._leader_heading_drawn:
@@ -661,15 +645,15 @@ class Recorder:
                 if has_heading:
                     d = _f32("leader_direction", np.reshape(frame.leader_direction, (1, -1)), (1, dim))
                     vec = d * np.float32(1.5 * frame.arrow_length)
-                rec.log(LEADER_HEADING, Arrows(origins=lead[: len(vec)], vectors=vec, colors=LEADER_COLOR,
-                                               radii=rr.Radius.ui_points(max(1.0, 0.8 * radius)), **markers))
+                self._draw(shapes, LEADER_HEADING, Arrows, {"origins": lead[: len(vec)], "vectors": vec},
+                           {"colors": LEADER_COLOR, "radii": rr.Radius.ui_points(max(1.0, 0.8 * radius)), **markers})
                 self._leader_heading_drawn = True
         for marker in frame.markers:
-            self._log_marker(marker, Points, Arrows, Strips, radius, frame.arrow_length)
+            self._log_marker(shapes, marker, Points, Arrows, Strips, radius, frame.arrow_length)
         for image in frame.fields:
             self._log_field(image)
-        if gather:
-            self._frames.add(step, pos, colors, vectors, strips, frame.profiles)
+        if shapes is not None:
+            self._frames.add(step, pos, colors, vectors, edges if draw_edges else None, frame.profiles, shapes)
         else:
             for name, values in frame.profiles.items():
                 rec.log(f"{PROFILES}/{name}", rr.BarChart(np.asarray(values, dtype=np.float32)))
@@ -704,7 +688,7 @@ class Recorder:
             points = points[:, -1:, :] - np.flip(np.cumsum(np.flip(step, axis=1), axis=1), axis=1)
             points = np.concatenate([points, pos[:, None, :]], axis=1)
         faded = (colors & np.uint32(0xFFFFFF00)) | np.uint32(110)
-        self.rec.log(TRAILS, Strips(_strips(np.ascontiguousarray(points, dtype=np.float32)), colors=faded,
+        self.rec.log(TRAILS, Strips(line_strips(np.ascontiguousarray(points, dtype=np.float32)), colors=faded,
                                     radii=rr.Radius.ui_points(0.6),
                                     **({"draw_order": DRAW_TRAILS} if self.world.dim == 2 else {})))
 
@@ -726,23 +710,38 @@ class Recorder:
             seg = rr.SegmentationImage(classes, opacity=1.0)
         self.rec.log(entity, seg, transform, rr.AnyValues(agents=int(image.agents)))
 
-    def _log_marker(self, marker: Marker, Points: type, Arrows: type, Strips: type, radius: float,
-                    arrow_length: float) -> None:
+    def _draw(self, shapes: dict[str, Shape] | None, entity: str, archetype: type, data: dict[str, np.ndarray],
+              style: dict[str, Any]) -> None:
+        """Draw one of a frame's other shapes (a leader, a marker's point, arrow or circle): `data` its per-step
+        components, `style` the rest. A gathered frame keeps the data in `shapes` and logs the style only when it
+        changes; else both are logged now."""
+        if shapes is None:
+            self.rec.log(entity, archetype(**data, **style))
+            self._shape_styles.pop(entity, None)
+            return
+        key = repr(sorted(style.items()))
+        if self._shape_styles.get(entity) != key:
+            self.rec.log(entity, archetype.from_fields(**style))
+            self._shape_styles[entity] = key
+        shapes[entity] = Shape(archetype, data)
+
+    def _log_marker(self, shapes: dict[str, Shape] | None, marker: Marker, Points: type, Arrows: type, Strips: type,
+                    radius: float, arrow_length: float) -> None:
         dim = self.world.dim
         entity = f"world/{marker.name}"
         order = {"draw_order": DRAW_MARKERS} if dim == 2 else {}
         where = _f32(marker.name, np.reshape(marker.position, (1, -1)), (1, dim))
-        self.rec.log(entity, Points(where, colors=marker.color, radii=rr.Radius.ui_points(marker.size * radius),
-                                    labels=marker.name.replace("_", " "), **order))
+        self._draw(shapes, entity, Points, {"positions": where},
+                   {"colors": marker.color, "radii": rr.Radius.ui_points(marker.size * radius),
+                    "labels": marker.name.replace("_", " "), **order})
         if marker.direction is not None:
             vec = _f32(marker.name, np.reshape(marker.direction, (1, -1)), (1, dim)) * np.float32(1.5 * arrow_length)
-            self.rec.log(f"{entity}/heading", Arrows(origins=where, vectors=vec, colors=marker.color,
-                                                    radii=rr.Radius.ui_points(max(1.0, 0.8 * radius)), **order))
+            self._draw(shapes, f"{entity}/heading", Arrows, {"origins": where, "vectors": vec},
+                       {"colors": marker.color, "radii": rr.Radius.ui_points(max(1.0, 0.8 * radius)), **order})
         if marker.circle is not None and dim == 2:
-            angle = np.linspace(0.0, 2 * math.pi, 97, dtype=np.float32)
-            ring = where[0] + np.float32(marker.circle) * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-            self.rec.log(f"{entity}/range", Strips([ring.astype(np.float32)], colors=(*marker.color, 140),
-                                                   radii=rr.Radius.ui_points(1.0), **order))
+            ring = where[0] + np.float32(marker.circle) * _UNIT_CIRCLE
+            self._draw(shapes, f"{entity}/range", Strips, {"strips": ring[None].astype(np.float32)},
+                       {"colors": (*marker.color, 140), "radii": rr.Radius.ui_points(1.0), **order})
 
     def log_metrics(self, step: int, values: Mapping[str, float]) -> None:
         """Log one value per metric at ``step`` and append a row to the metrics table.
