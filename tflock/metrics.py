@@ -54,16 +54,18 @@ def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, reference: float, pa
 
 
 @functools.lru_cache(maxsize=8)
-def _scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
+def scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
+    """An ndarray of this shape and dtype for a pass's partial results, made once and shared (making an ndarray
+    costs about a millisecond in Taichi's front end): read it before the next pass of the same shape writes it."""
     return ti.ndarray(dtype, shape)
 
 
 def heading_order(theta: ti.Ndarray, n: int, reference: float = 0.0) -> tuple[float, float, float]:
     """Polarization |mean (cos, sin)| (Vicsek 1995 order parameter), circular mean heading in [0, 2 pi), and the
     sum over agents of |wrap(theta - reference)| (e.g. the followers' distance to a leader's heading)."""
-    partial = _scratch((n_blocks(n), 3), theta.dtype)
+    partial = scratch((n_blocks(n), 3), theta.dtype)
     _angle_block_sums(theta, n, reference, partial)
-    c, s, gap = partial.to_numpy().astype(np.float64).sum(axis=0)
+    c, s, gap = host_array(partial).astype(np.float64).sum(axis=0)
     return float(math.hypot(c, s) / n), float(math.atan2(s, c) % (2 * math.pi)), float(gap)
 
 
@@ -271,7 +273,7 @@ def total(values: ti.Ndarray, n: int) -> float:
 def kernel_total(values: ti.Ndarray, n: int) -> float:
     """:func:`total` on GPU arches: block sums in a kernel, added in NumPy."""
     real = values.dtype in (ti.f32, ti.f64)
-    partial = _scratch((n_blocks(n),), values.dtype if real else ti.i64)
+    partial = scratch((n_blocks(n),), values.dtype if real else ti.i64)
     _block_sums(values, n, partial)
     return float(partial.to_numpy().astype(np.float64 if real else np.int64).sum())
 
@@ -357,12 +359,12 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
     if n < 2:
         return 0.0, 0.0
     if n <= EXACT_PAIRS_MAX:
-        partial = _scratch((n, 2), pos.dtype)
+        partial = scratch((n, 2), pos.dtype)
         _pairs_exact(pos, theta, n, box, boundary, dim, partial)
-        return tuple(partial.to_numpy().astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
-    partial = _scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
+        return tuple(host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
+    partial = scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
-    return tuple(partial.to_numpy().astype(np.float64).sum(axis=0) / SAMPLED_PAIRS)
+    return tuple(host_array(partial).astype(np.float64).sum(axis=0) / SAMPLED_PAIRS)
 
 
 @ti.kernel
@@ -388,7 +390,7 @@ def replica_pairwise_errors(grid: CellGrid, pos: ti.Ndarray, theta: ti.Ndarray, 
     per = grid.geometry.agents_per_replica
     if per < 2:
         return np.zeros(grid.replicas), np.zeros(grid.replicas)
-    partial = _scratch((grid.n, 2), pos.dtype)
+    partial = scratch((grid.n, 2), pos.dtype)
     _replica_pairs_exact(pos, theta, per, box, boundary, dim, grid.slots(), grid.order, partial)
-    sums = partial.to_numpy().astype(np.float64).reshape(grid.replicas, per, 2).sum(axis=1) / (per * (per - 1) / 2)
+    sums = host_array(partial).astype(np.float64).reshape(grid.replicas, per, 2).sum(axis=1) / (per * (per - 1) / 2)
     return sums[:, 0], sums[:, 1]

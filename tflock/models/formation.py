@@ -53,7 +53,7 @@ from tflock.fastmath import cos_sin, sin_cos
 from tflock.field import UNIT_VECTORS
 from tflock.frame import ColorLegend, Frame, Marker, WorldSpec, arrow_length
 from tflock.guard import NO_AGENT, Guarded, first_non_finite
-from tflock.metrics import BLOCK, n_blocks
+from tflock.metrics import BLOCK, n_blocks, scratch
 from tflock.models.base import Model
 from tflock.models.formation_params import (
     ALIGN,
@@ -85,6 +85,7 @@ from tflock.neighbors import (
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
 from tflock.space import PERIODIC, REFLECTING, WINDOW, displacement, wrap_periodic, wrap_pi, wrap_two_pi
+from tflock.taichi_host import host_array
 
 TWO_PI = 2 * math.pi
 # slots of the constants array
@@ -604,7 +605,7 @@ class Formation(Model):
 
     def tau_reached(self) -> int | None:
         """The first step of the desired formation (uncapped), or None if not reached yet."""
-        tau = int(self.tau.to_numpy()[0])
+        tau = int(host_array(self.tau)[0])
         return None if tau < 0 else tau
 
     def build_neighbours(self) -> None:
@@ -635,7 +636,7 @@ class Formation(Model):
         k = self.cur
         va = self.va_position()
         _quantifier_blocks(n, self.consts, va[0], va[1], self.pos[k], self.f[k], self.rule, self.partial)
-        s = self.partial.to_numpy().astype(np.float64).sum(axis=0)
+        s = host_array(self.partial).astype(np.float64).sum(axis=0)
         tau = self.tau_reached()
         return {
             "tau": float(p.tau_cap if tau is None else min(tau, p.tau_cap)),
@@ -651,17 +652,17 @@ class Formation(Model):
     def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
         """(m, 5) rows x, y, theta, rule, speed of agents[:m]."""
         k = self.cur
-        out = ti.ndarray(self.pos[k].dtype, (max(1, m), 5))
+        out = scratch((max(1, m), 5), self.pos[k].dtype)
         if m:
             _frame_rows(m, self.params.n, agents, self.ids[k], self.where, self.pos[k], self.f[k], self.rule, out)
-        return out.to_numpy()[:m]
+        return host_array(out)[:m].copy()
 
     def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
         """Agents coloured by what drives them this step (red: separation, green: inside the VAIR, blue: outside,
         grey: communication failure) with arrows of their velocity / |vout|, edges within the vision radius; the VA
         with its heading and VAIR circle."""
         p = self.params
-        ids = ti.ndarray(ti.i32, max(1, len(selected)))
+        ids = scratch((max(1, len(selected)),), ti.i32)  # made once (making an ndarray costs about a millisecond)
         if len(selected):
             ids.from_numpy(np.asarray(selected, dtype=np.int32))
         rows = self._rows(ids, len(selected))

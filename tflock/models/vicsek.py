@@ -63,6 +63,7 @@ from tflock.metrics import (
     mean,
     pairwise_errors,
     replica_pairwise_errors,
+    scratch,
 )
 from tflock.models.base import GridModel
 from tflock.neighbors import (
@@ -96,7 +97,7 @@ from tflock.space import (
     wrap_pi,
     wrap_two_pi,
 )
-from tflock.taichi_host import host_view
+from tflock.taichi_host import host_array, host_view
 from tflock.topological import cell_side, find_nearest, lane_wise
 
 #: agents :func:`_update` takes at a time: fixed, not LANES, because LLVM fuses multiply-adds in the update's
@@ -954,7 +955,7 @@ class Vicsek(GridModel):
             raise RuntimeError("a batch of replicas has no single set of metrics: use replica_metrics()")
         p = self.params
         self._ensure_grid()
-        leader_heading = float(self._rows(self._leader_id, 1)[0, 2]) if p.leader.enabled else 0.0
+        leader_heading = float(self._leader_row()[2]) if p.leader.enabled else 0.0
         if self.components is not None:
             out = self._lane_wise_metrics()
             if p.leader.enabled:
@@ -1055,7 +1056,7 @@ class Vicsek(GridModel):
             colors = (colors * dim).astype(np.uint8)
         leader = leader_direction = None
         if p.leader.enabled:
-            x0, y0, th0, _ = self._rows(self._leader_id, 1)[0]
+            x0, y0, th0, _ = self._leader_row()
             leader = np.array([x0, y0], dtype=np.float32)
             leader_direction = np.array([math.cos(th0), math.sin(th0)], dtype=np.float32)
         if self.lane_wise or self.topological:  # the step keeps cos and sin of every heading
@@ -1078,13 +1079,13 @@ class Vicsek(GridModel):
             profiles=profiles,
         )
 
-    def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
-        """(m, 4) rows x, y, theta, updated of agents[:m] (grid current)."""
-        out = ti.ndarray(self.pos.dtype, (max(1, m), 4))
-        if m:
-            _frame_rows(m, agents, self.grid.slots(), self.grid.order, self.grid.pos_sorted, self.theta,
-                        self.updated, out)
-        return out.to_numpy()[:m]
+    def _leader_row(self) -> np.ndarray:
+        """x, y, theta, updated of the leader, agent 0 (grid current), through a scratch row made once (making an
+        ndarray costs about a millisecond; a model attribute would change what a checkpoint holds)."""
+        out = scratch((1, 4), self.pos.dtype)
+        _frame_rows(1, self._leader_id, self.grid.slots(), self.grid.order, self.grid.pos_sorted, self.theta,
+                    self.updated, out)
+        return host_array(out)[0].copy()
 
     def world(self) -> WorldSpec:
         return WorldSpec(dim=2, boundary=self.params.boundary, box=self.params.box, dt=self.dt)
