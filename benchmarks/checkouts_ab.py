@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 CASES = [("vicsek", 10), ("vicsek", 100), ("vicsek", 1000), ("potential", 10), ("potential", 100),
          ("potential", 1000), ("configs/papers/tanner-fixed.toml", 10),
@@ -35,21 +36,27 @@ CASES = [("vicsek", 10), ("vicsek", 100), ("vicsek", 1000), ("potential", 10), (
 READY = "ready"
 
 
+def case_simulation(name: str, n: int) -> Any:  # a Simulation of whichever tflock is on the path
+    """A case's Simulation, with no end in sight: a paper config without its recording, or `tflock bench`'s
+    workload of a model at N agents with metrics every 10 steps."""
+    from tflock.bench import BenchCase, case_config
+    from tflock.simulation import Simulation
+
+    if name.endswith(".toml"):
+        return Simulation(name, steps=10**9, record=False)
+    config = case_config(BenchCase(model=name, n=n))
+    config["steps"] = 10**9
+    config["log"] = {"metrics_every": 10}
+    return Simulation(config)
+
+
 def worker(name: str, n: int, steps: int) -> None:
     """Set up one case, then time `steps` steps from the saved state for every "round" line on stdin."""
     import taichi as ti
 
     import tflock
-    from tflock.bench import BenchCase, case_config
-    from tflock.simulation import Simulation
 
-    if name.endswith(".toml"):
-        sim = Simulation(name, steps=10**9, record=False)
-    else:
-        config = case_config(BenchCase(model=name, n=n))
-        config["steps"] = 10**9
-        config["log"] = {"metrics_every": 10}
-        sim = Simulation(config)
+    sim = case_simulation(name, n)
     sim.step(20)
     start = (sim.model.checkpoint(), sim.model.step_index)
     print(READY, Path(tflock.__file__).parent, flush=True)

@@ -29,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 import taichi as ti
+from checkouts_ab import case_simulation
 from taichi.lang.kernel_impl import Kernel
 
 import tflock.models.potential as potential
 import tflock.models.vicsek as vicsek
-from tflock.bench import BenchCase, case_config, machine
+from tflock.bench import machine
 from tflock.simulation import Simulation
 
 CASES = [("vicsek", 10), ("vicsek", 100), ("vicsek", 1000), ("potential", 10), ("potential", 100),
@@ -80,13 +81,7 @@ def timed(fn, steps: int) -> float:
 
 
 def run_case(name: str, n: int, rounds: int, steps: int) -> dict:
-    if name.endswith(".toml"):
-        sim = Simulation(name, steps=10**9, record=False)
-    else:
-        config = case_config(BenchCase(model=name, n=n))
-        config["steps"] = 10**9
-        config["log"] = {"metrics_every": 10}
-        sim = Simulation(config)
+    sim = case_simulation(name, n)
     fast = Kernel.__call__
     sim.step(20)
     start = (sim.model.checkpoint(), sim.model.step_index)
