@@ -1,10 +1,17 @@
 """The memoized source-position messages of Taichi's front end (tflock.taichi_frontend) are the messages Taichi
-formats itself, and compile errors still point at the right line of the right function."""
+formats itself, and compile errors still point at the right line of the right function; the decorators' class
+check answers as Taichi's own."""
 
+import importlib
+import sys
+
+import numpy as np
 import pytest
 import taichi as ti
+from taichi.lang import kernel_impl
 from taichi.lang.ast.ast_transformer_utils import ASTTransformerContext
 
+from tflock import taichi_frontend
 from tflock.taichi_frontend import memoize_position_messages
 
 
@@ -63,3 +70,57 @@ def test_compile_errors_name_their_own_line(engine, kernel, name):
         kernel(ti.ndarray(ti.f32, 2))
     text = str(caught.value)
     assert f"in {kernel.__name__}:" in text and f"a[i] = {name}" in text
+
+
+def test_the_class_check_answers_as_taichis_own(engine, monkeypatch):
+    """Every decorator of a tflock module and of a data-oriented class gets the same answer from the linecache check
+    as from Taichi's inspect-based one (asked at the same stack depth), and a data-oriented class's kernel runs."""
+    assert kernel_impl._inside_class is taichi_frontend._inside_class, "installed when tflock.engine is imported"
+    answers = []
+
+    def both(level_of_class_stackframe):
+        level = level_of_class_stackframe + 1  # one frame deeper here
+        ours, taichis = taichi_frontend._inside_class(level), _taichis_inside_class(level)
+        answers.append((ours, taichis))
+        return ours
+
+    monkeypatch.setattr(kernel_impl, "_inside_class", both)
+
+    @ti.data_oriented
+    class Filled:
+        def __init__(self):
+            self.values = ti.ndarray(ti.i32, 3)
+
+        @ti.kernel
+        def fill(self, a: ti.types.ndarray(), value: ti.i32):
+            for i in range(a.shape[0]):
+                a[i] = value + self.offset()
+
+        @ti.func
+        def offset(self):
+            return 1
+
+    filled = Filled()
+    filled.fill(filled.values, 4)
+    assert np.array_equal(filled.values.to_numpy(), [5, 5, 5])
+    for name in ("tflock.lane_graph", "tflock.observables"):  # their decorators again, freshly imported
+        monkeypatch.delitem(sys.modules, name, raising=False)
+        importlib.import_module(name)
+    assert len(answers) > 30 and sum(ours for ours, _ in answers) == 2  # the class's kernel and func
+    assert all(ours == taichis for ours, taichis in answers)
+
+
+def _taichis_inside_class(level_of_class_stackframe):
+    """Taichi 1.7's kernel_impl._inside_class (copied: the module's own name now points at ours)."""
+    import inspect
+
+    try:
+        maybe_class_frame = sys._getframe(level_of_class_stackframe)
+        statement_list = inspect.getframeinfo(maybe_class_frame)[3]
+        first_statment = statement_list[0].strip()
+        for pat in kernel_impl._KERNEL_CLASS_STACKFRAME_STMT_RES:
+            if pat.match(first_statment):
+                return True
+    except Exception:
+        pass
+    return False

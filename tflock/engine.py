@@ -19,10 +19,11 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # before the import: n
 
 import taichi as ti  # noqa: E402
 
-from tflock.taichi_frontend import memoize_position_messages  # noqa: E402
+from tflock.taichi_frontend import fast_class_check, memoize_position_messages  # noqa: E402
 from tflock.taichi_host import copy_on_host  # noqa: E402
 from tflock.taichi_launch import fast_launches  # noqa: E402
 
+fast_class_check()
 memoize_position_messages()
 copy_on_host()
 fast_launches()
