@@ -103,7 +103,7 @@ def test_the_class_check_answers_as_taichis_own(engine, monkeypatch):
     filled = Filled()
     filled.fill(filled.values, 4)
     assert np.array_equal(filled.values.to_numpy(), [5, 5, 5])
-    for name in ("tflock.lane_graph", "tflock.observables"):  # their decorators again, freshly imported
+    for name in ("tflock.neighbors", "tflock.lane_graph", "tflock.observables"):  # their decorators again
         monkeypatch.delitem(sys.modules, name, raising=False)
         importlib.import_module(name)
     assert len(answers) > 30 and sum(ours for ours, _ in answers) == 2  # the class's kernel and func
