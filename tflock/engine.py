@@ -29,6 +29,10 @@ copy_on_host()
 fast_launches()
 
 ARCHES = ("cpu", "cuda", "vulkan", "auto")
+#: Taichi's on-disk kernel cache (~/.cache/taichi) may hold this much before it drops the least recently used
+#: quarter: its own limit, 100 MiB, fills with tflock's kernels (two precisions, two lane widths, every model's
+#: variants), after which runs compile again (seconds to minutes) what a larger cache keeps
+KERNEL_CACHE_BYTES = 1 << 30
 PRECISIONS = ("f32", "f64")
 LANE_COUNTS = ("8", "16")
 
@@ -141,7 +145,8 @@ def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> 
     fp = ti.f32 if precision == "f32" else ti.f64
     # a GPU arch that is missing logs fallback warnings; our own one-line error replaces them
     quiet = ti.WARN if arch == "cpu" else ti.ERROR
-    common = dict(default_fp=fp, default_ip=ti.i32, cpu_max_num_threads=n_threads, log_level=quiet)
+    common = dict(default_fp=fp, default_ip=ti.i32, cpu_max_num_threads=n_threads, log_level=quiet,
+                  offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
     arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu] if precision == "f32" else [ti.cuda, ti.cpu]}
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
         ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
