@@ -51,6 +51,12 @@ def line_strips(points: np.ndarray) -> pa.ListArray:
     return pa.ListArray.from_arrays(offsets, flat, type=strips_type)
 
 
+def time_columns(steps: np.ndarray, dt: float) -> list[rr.TimeColumn]:
+    """The recording's two timelines for rows at these steps: ``step`` and ``time`` (step x dt)."""
+    at = np.asarray(steps, dtype=np.int64)
+    return [rr.TimeColumn("step", sequence=at), rr.TimeColumn("time", duration=at * dt)]
+
+
 def bar_chart_rows(values: np.ndarray) -> pa.Array:
     """Rows of ``BarChart:values`` (Rerun TensorData, a 1D f32 tensor each) for `values` (K, bins): one array for K
     charts, where Rerun's Python API builds one chart per call."""
@@ -120,7 +126,7 @@ class FrameColumns:
             self.send()  # a send left unfinished, or another set of bar charts: the gathered frames go first
         if not self._gathered:
             self._since = time.monotonic()
-        self._gathered.append(_Gathered(int(step), positions, colors, vectors, edges, bars, dict(shapes)))
+        self._gathered.append(_Gathered(int(step), positions, colors, vectors, edges, bars, shapes))
         if self._first or len(self._gathered) >= GATHER_FRAMES or time.monotonic() - self._since >= GATHER_S:
             self._first = False
             self.send()
@@ -132,8 +138,7 @@ class FrameColumns:
         frames = self._gathered
         if not frames:
             return
-        at = np.asarray([f.step for f in frames], dtype=np.int64)
-        indexes = [rr.TimeColumn("step", sequence=at), rr.TimeColumn("time", duration=at * self.dt)]
+        indexes = time_columns([f.step for f in frames], self.dt)
         agents, headings, edges, profiles = self.entities
         Points, Arrows, Strips = ((rr.Points2D, rr.Arrows2D, rr.LineStrips2D) if self.dim == 2
                                   else (rr.Points3D, rr.Arrows3D, rr.LineStrips3D))
@@ -159,10 +164,8 @@ class FrameColumns:
         for entity in dict.fromkeys(name for f in frames for name in f.shapes):  # in the order they were drawn
             if entity not in self._sent:
                 having = [f for f in frames if entity in f.shapes]  # steps that did not draw it keep what was drawn
-                at = np.asarray([f.step for f in having], dtype=np.int64)
                 rows, sizes = _shape_columns([f.shapes[entity] for f in having])
-                self.rec.send_columns(entity, indexes=[rr.TimeColumn("step", sequence=at),
-                                                       rr.TimeColumn("time", duration=at * self.dt)],
+                self.rec.send_columns(entity, indexes=time_columns([f.step for f in having], self.dt),
                                       columns=rows.partition(sizes))
                 self._sent.add(entity)
         self._gathered, self._sent = [], set()

@@ -54,7 +54,7 @@ import rerun.blueprint as rrb
 
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
 from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
-from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips
+from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips, time_columns
 
 __all__ = [
     "BOUNDARIES",
@@ -778,12 +778,8 @@ class Recorder:
         """Hand the gathered metric rows to Rerun, one column of (step, time, value) per metric."""
         for name, (steps, values) in self._pending.items():
             if steps:
-                at = np.asarray(steps, dtype=np.int64)
-                self.rec.send_columns(
-                    f"{METRICS}/{name}",
-                    indexes=[rr.TimeColumn("step", sequence=at), rr.TimeColumn("time", duration=at * self.world.dt)],
-                    columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)),
-                )
+                self.rec.send_columns(f"{METRICS}/{name}", indexes=time_columns(steps, self.world.dt),
+                                      columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
                 steps.clear()
                 values.clear()
         self._pending_rows, self._pending_since = 0, time.monotonic()
