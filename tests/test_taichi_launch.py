@@ -67,3 +67,26 @@ def test_runs_are_bit_identical_to_taichis_own_call(make_sim, monkeypatch, model
     plain = make_sim(model=model, params=params, steps=25, seed=4, log={"metrics_every": 5})
     plain.run()
     assert_same_run(fast, plain)
+
+
+def test_bound_contexts_follow_their_ndarrays(cpu_engine):
+    """On the CPU a plan binds a launch context to the ndarrays it was called with: each call still reads and
+    writes the ndarrays it is given, whether they are ones it met before, new ones (more than it keeps bound), or
+    new ones that took a dead one's id."""
+    from tflock.taichi_launch import BOUND_CONTEXTS
+
+    src = ti.ndarray(ti.f32, 5)
+    src.from_numpy(np.arange(5, dtype=np.float32))
+    kept = [ti.ndarray(ti.f32, 5) for _ in range(BOUND_CONTEXTS + 2)]
+    for factor in (1.0, 2.0, 3.0):  # every ndarray met again after more than BOUND_CONTEXTS others
+        for dst in kept:
+            dst.fill(0.0)
+            _scaled(5, factor, False, src, dst)
+            assert np.array_equal(dst.to_numpy(), np.arange(5, dtype=np.float32) * factor)
+    for trial in range(20):  # short-lived ndarrays: CPython hands a dead one's id to the next one often
+        dst = ti.ndarray(ti.f32, 5)
+        _scaled(5, float(trial), True, src, dst)
+        assert np.array_equal(dst.to_numpy(), -np.arange(5, dtype=np.float32) * np.float32(trial))
+        del dst
+    plans = [p for key, p in _scaled._primal._tflock_plans.items() if key[1] is float and p.bound is not None]
+    assert plans and all(len(p.bound) <= BOUND_CONTEXTS for p in plans)

@@ -25,7 +25,7 @@ from taichi.lang import impl
 from taichi.lang._ndarray import ScalarNdarray
 from taichi.lang.util import to_numpy_type
 
-_CPU_ARCHES = (_ti_core.Arch.x64, _ti_core.Arch.arm64)
+CPU_ARCHES = (_ti_core.Arch.x64, _ti_core.Arch.arm64)
 
 
 #: swarms of at most this many agents take their small passes over the state (counts, sums) in NumPy on host views
@@ -41,7 +41,7 @@ def host_view(array: Any) -> np.ndarray | None:
         return None
     view = array.__dict__.get("_tflock_view")  # made once: an ndarray's memory stays where it is
     if view is None:
-        if impl.current_cfg().arch not in _CPU_ARCHES:
+        if impl.current_cfg().arch not in CPU_ARCHES:
             return None
         shape = tuple(array.arr.total_shape())
         dtype = np.dtype(to_numpy_type(array.dtype))

@@ -13,6 +13,11 @@ through Taichi's own path (compiling the instance, checking every argument); lat
 set the arguments with one precomputed setter each and launch the same compiled kernel. The kernel run, and so
 every result, is the same bit for bit; only the Python work around it shrinks.
 
+On the CPU a plan also keeps launch contexts *bound* to the Taichi ndarrays it was called with: each ndarray is set
+once, as the address, size and shape of its host memory (what Taichi's CPU launcher makes of an ndarray argument at
+every launch), and a later call with the same ndarrays sets only its other arguments. A model's step passes the same
+tens of ndarrays at every step, and setting each one through Taichi's bindings costs microseconds.
+
 A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
 ndarray arguments that are Taichi scalar ndarrays without gradients or C-contiguous NumPy arrays of scalars (set as
 Taichi sets them: their address, size and shape), scalar arguments of a primitive type (Python or NumPy scalars), no
@@ -22,17 +27,22 @@ that are not C-contiguous, ...) takes Taichi's own path, every time.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from taichi.lang import kernel_impl
+from taichi.lang import impl, kernel_impl
 from taichi.lang._ndarray import ScalarNdarray
 from taichi.lang.kernel_impl import Kernel
 from taichi.lang.util import cook_dtype
 from taichi.types import ndarray_type, primitive_types, template
 from taichi.types.utils import is_signed
 
+from tflock.taichi_host import CPU_ARCHES, host_view
+
+#: launch contexts a plan keeps bound to sets of ndarrays (a model alternating buffers uses two or three)
+BOUND_CONTEXTS = 8
 _TEMPLATE_VALUES = (bool, int, float, str, type(None))
 #: scalar arguments a plan sets (NumPy's scalars too: a model's host arithmetic often yields them)
 _SCALARS = (bool, int, float, np.float64, np.float32, np.int64, np.int32)
@@ -79,14 +89,37 @@ def _setter(annotation: Any, kind: type, index: tuple[int]) -> Callable[[Any, An
     return None
 
 
+class _Bound:
+    """A launch context of one plan whose ndarray arguments are set once, as the addresses of their host memory
+    (on the CPU an ndarray lives there and stays where it is). Holds its ndarrays weakly: a context whose ndarrays
+    died is never launched again."""
+
+    def __init__(self, plan: _Plan, arrays: tuple) -> None:
+        self.refs = tuple(weakref.ref(array) for array in arrays)
+        self.ctx = plan.t_kernel.make_launch_context()
+        for slot, array in zip(plan.array_slots, arrays, strict=True):
+            view = host_view(array)
+            self.ctx.set_arg_external_array_with_shape((slot,), int(view.ctypes.data), view.nbytes, view.shape, 0)
+
+    def holds(self, arrays: tuple) -> bool:
+        return all(ref() is array for ref, array in zip(self.refs, arrays, strict=True))
+
+
 class _Plan:
-    """The compiled instance of one signature and one setter per non-template argument."""
+    """The compiled instance of one signature and one setter per non-template argument; on the CPU, launch contexts
+    bound to the sets of ndarrays it was called with (the last :data:`BOUND_CONTEXTS`)."""
 
     def __init__(self, kernel: Kernel, args: tuple) -> None:
         instance, _ = kernel.mapper.lookup(args)
         self.key = (kernel.func, instance, kernel.autodiff_mode)
         self.t_kernel = kernel.compiled_kernels[self.key]
-        self.setters: list[tuple[int, Callable[[Any, Any], None]]] = []
+        prog = kernel.runtime.prog
+        self.compiled = prog.compile_kernel(prog.config(), prog.get_device_caps(), self.t_kernel)
+        self.setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # every non-template argument's
+        self.array_positions: list[int] = []  # where the Taichi ndarrays are among the arguments
+        self.array_slots: list[int] = []  # and among the kernel's parameters
+        self.other_setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # the rest's, set at every launch
+        self.bound: dict[tuple[int, ...], _Bound] | None = {} if impl.current_cfg().arch in CPU_ARCHES else None
         self.valid = kernel.return_type is None and not getattr(kernel, "has_print", False)
         slot = 0
         for position, (arg, argument) in enumerate(zip(args, kernel.arguments, strict=True)):
@@ -97,14 +130,30 @@ class _Plan:
                 self.valid = False
                 return
             self.setters.append((position, setter))
+            if type(arg) is ScalarNdarray:
+                self.array_positions.append(position)
+                self.array_slots.append(slot)
+            else:
+                self.other_setters.append((position, setter))
             slot += 1
 
     def launch(self, kernel: Kernel, args: tuple) -> None:
-        ctx = self.t_kernel.make_launch_context()
-        for position, setter in self.setters:
-            setter(ctx, args[position])
-        prog = kernel.runtime.prog
-        prog.launch_kernel(prog.compile_kernel(prog.config(), prog.get_device_caps(), self.t_kernel), ctx)
+        if self.bound is None:
+            ctx = self.t_kernel.make_launch_context()
+            for position, setter in self.setters:
+                setter(ctx, args[position])
+        else:
+            arrays = tuple([args[p] for p in self.array_positions])
+            key = tuple(map(id, arrays))
+            bound = self.bound.get(key)
+            if bound is None or not bound.holds(arrays):  # new ndarrays, or a dead one's id taken by a new one
+                if len(self.bound) >= BOUND_CONTEXTS:
+                    del self.bound[next(iter(self.bound))]
+                bound = self.bound[key] = _Bound(self, arrays)
+            ctx = bound.ctx
+            for position, setter in self.other_setters:
+                setter(ctx, args[position])
+        kernel.runtime.prog.launch_kernel(self.compiled, ctx)
 
 
 def _fast_call(original: Callable[..., Any]) -> Callable[..., Any]:
