@@ -162,8 +162,9 @@ def test_drawn_edges_match_brute_force(engine, dim, boundary):
 
 @pytest.mark.parametrize("dim,boundary", [(2, "periodic"), (2, "open"), (3, "periodic"), (3, "reflecting")])
 def test_few_drawn_agents_edges_from_all_pairs_match_the_grid(engine, monkeypatch, dim, boundary):
-    """A frame of at most ALL_PAIRS_ROWS drawn agents takes its edges from all pairs in NumPy: the brute-force pairs,
-    row by row, each edge's far end by the minimum image, and under a cap the same whole rows as the grid's path."""
+    """A frame of at most ALL_PAIRS_ROWS drawn agents takes its edges from all pairs, on one thread: the brute-force
+    pairs, row by row, each edge's far end by the minimum image, and under a cap the same whole rows as the grid's
+    path."""
     import tflock.neighbors as neighbors
 
     rng = np.random.default_rng(dim + 10)
@@ -472,6 +473,23 @@ def test_components_match_brute_force(engine, boundary, dim, kind, dense):
         assert a.sum(axis=1).mean() > 10 and sizes.max() > 250
     else:
         assert len(sizes) > 20
+
+
+def test_small_dense_swarms_take_the_pairs_pass(engine):
+    """A flock dense enough for the sub-cell pass but of at most SUBCELL_MIN_AGENTS agents is joined by the pairs
+    pass (the sub-cell grid's launches cost more there), with the brute-force components and counts."""
+    from tflock.components import SUBCELL_MIN_AGENTS
+
+    rng = np.random.default_rng(5)
+    box, radius = 12.0, 1.0
+    x = swarm("one flock", SUBCELL_MIN_AGENTS, 2, box, radius, rng).astype(engine.real)
+    graph = NeighbourGraph(built_grid(engine, x, "periodic", box, radius))
+    got = graph.compute(radius, box)
+    assert graph._components.dense and graph._components.slot_grid is graph.grid  # dense, yet the pairs pass
+    want = ref.graph_metrics(x, radius, "periodic", box)
+    assert (got["clusters"], got["max_neighbors"]) == (want["clusters"], want["max_neighbors"])
+    assert got["largest_cluster"] == pytest.approx(want["largest_cluster"])
+    assert got["mean_neighbors"] == pytest.approx(want["mean_neighbors"]) and want["mean_neighbors"] > 10
 
 
 @pytest.mark.parametrize("boundary", ["periodic", "open"])

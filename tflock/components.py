@@ -1,8 +1,8 @@
 """Connected components of the R-graph (DESIGN.md section 4: clusters and S), by a lock-free parallel union-find
-in one of two passes, whichever suits the swarm's density (:class:`Components` picks):
+in one of two passes, whichever suits the swarm's size and density (:class:`Components` picks):
 
-- pairs (sparse swarms): each agent joins its neighbours at smaller slots of the model's own grid, a union only
-  where the two roots differ (no atomics but the hooks).
+- pairs (sparse swarms, and any swarm of at most SUBCELL_MIN_AGENTS agents): each agent joins its neighbours at
+  smaller slots of the model's own grid, a union only where the two roots differ (no atomics but the hooks).
 - sub-cells (dense flocks: the adaptive-velocity model's hundreds to over a thousand neighbours each): a sub-cell
   of side at most R / sqrt(dim) holds agents that are all within R of each other, so they are joined without
   looking at pairs; the work is then per pair of neighbouring sub-cells, not per pair of agents. Three passes over
@@ -318,6 +318,9 @@ def _pair_sizes(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(),
 #: back to pairs below SPARSE_SUBCELL)
 DENSE_SUBCELL = 3.0
 SPARSE_SUBCELL = 2.0
+#: the sub-cell pass only for more agents than this: a smaller swarm's pairs pass, however dense, costs less than
+#: the sub-cell grid's build and passes (launches, most of it)
+SUBCELL_MIN_AGENTS = 256
 
 
 class Components:
@@ -355,7 +358,7 @@ class Components:
         """The number of components and the largest one's size, for the model grid's current build."""
         if mean_degree is not None:
             self.dense = self._occupancy(mean_degree) >= DENSE_SUBCELL
-        if self.dense:
+        if self.dense and self.model_grid.n > SUBCELL_MIN_AGENTS:
             return self._by_subcells()
         return self._by_pairs()
 

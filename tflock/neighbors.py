@@ -60,7 +60,7 @@ _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 #: layout code of a bounded open-space grid (see CellGrid): not a boundary (its displacement is the plain difference)
 BOUNDED = 3
-#: a frame of at most this many drawn agents finds its edges from all their pairs in NumPy (see DrawnEdges)
+#: a frame of at most this many drawn agents finds its edges from all their pairs (see DrawnEdges)
 ALL_PAIRS_ROWS = 128
 #: buckets a periodic box's window grid may use at least (see CellGrid)
 WINDOW_MIN_BUCKETS = 4096
@@ -848,12 +848,32 @@ def _lower_pairs(rows: ti.i32, slot_of: ti.types.ndarray(), radius: float, box: 
             counts[r] = e
 
 
-@functools.lru_cache(maxsize=8)
-def _earlier(m: int) -> np.ndarray:
-    """(m, m) booleans, True where column k comes before row r (read only: shared between calls)."""
-    mask = np.tri(m, m, -1, dtype=bool)
-    mask.flags.writeable = False
-    return mask
+@ti.kernel
+def _all_pairs(m: ti.i32, radius: float, box: float, max_edges: ti.i32, boundary: ti.template(), dim: ti.template(),
+               x: ti.types.ndarray(), edges: ti.types.ndarray(), count: ti.types.ndarray()):
+    """:meth:`DrawnEdges.edges` of the rows x[0 .. m) (x: (m, dim)) from all their pairs, on one thread: each row's
+    pairs with the earlier rows within R, tested and drawn as :func:`_lower_pairs` does, rows in order, the earlier
+    rows in order; only whole rows, while all their edges fit in `max_edges`. count[0]: the edges written."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        e = 0
+        r = 1
+        while r < m:
+            first = e  # the row's first edge: the row is dropped whole if its edges do not all fit
+            p = ti.Vector([x[r, a] for a in ti.static(range(dim))])
+            for k in range(r):
+                d = displacement(p, ti.Vector([x[k, a] for a in ti.static(range(dim))]), box, boundary)
+                if d.norm_sqr() <= radius * radius:
+                    if e < max_edges:
+                        for a in ti.static(range(dim)):
+                            edges[e, 0, a] = p[a]
+                            edges[e, 1, a] = p[a] + d[a]
+                    e += 1
+            if e > max_edges:
+                e = first
+                break
+            r += 1
+        count[0] = e
 
 
 class DrawnEdges:
@@ -888,8 +908,12 @@ class DrawnEdges:
         m = len(positions)
         if m < 2 or max_edges <= 0:
             return np.zeros((0, 2, self.dim), dtype=self.real)
-        if m <= ALL_PAIRS_ROWS:
-            return self._all_pairs(np.asarray(positions, dtype=self.real), max_edges)
+        if m <= ALL_PAIRS_ROWS:  # a grid's launches cost more than all the pairs of so few rows
+            edges = np.empty((min(max_edges, m * (m - 1) // 2), 2, self.dim), dtype=self.real)
+            count = np.zeros(1, dtype=np.int32)
+            _all_pairs(m, self.radius, self.box, max_edges, boundary_code(self.boundary), self.dim,
+                       np.ascontiguousarray(positions, dtype=self.real), edges, count)
+            return edges[: count[0]]
         rows = min(m, 1 << max(8, math.ceil(math.log2(max(1.25 * self._rows_needed, 1.0)))))
         while True:
             grid, pos, ids = self._grid(rows)
@@ -912,28 +936,6 @@ class DrawnEdges:
             offsets[1:] = total[: needed - 1]
             _lower_pairs(needed, *args, counts, offsets, 1, edges)
         return edges
-
-    def _all_pairs(self, x: np.ndarray, max_edges: int) -> np.ndarray:
-        """:meth:`edges` of a few rows from all their pairs in NumPy, tested as :func:`_lower_pairs` tests them (a
-        grid's launches cost more than the pairs): each row's edges to the earlier rows, those in row order."""
-        m = len(x)
-        periodic = boundary_code(self.boundary) == PERIODIC
-        box, half = self.real(self.box), self.real(0.5 * self.box)
-        r2 = np.zeros((m, m), dtype=self.real)
-        steps = []  # per axis, d[r, k] = x[k] - x[r] (minimum image when periodic)
-        for a in range(x.shape[1]):  # one axis at a time: a sum over a last axis of 2 or 3 is slow in NumPy
-            d = x[None, :, a] - x[:, None, a]
-            if periodic:
-                d = np.where(d > half, d - box, np.where(d < -half, d + box, d))
-            r2 += d * d
-            steps.append(d)
-        radius = self.real(self.radius)
-        near = (r2 <= radius * radius) & _earlier(m)
-        total = np.cumsum(near.sum(axis=1))
-        needed = int(np.searchsorted(total, max_edges, side="right"))  # rows whose pairs all fit
-        r, k = np.nonzero(near[:needed])
-        far = x[r] + np.stack([d[r, k] for d in steps], axis=1) if periodic else x[k]  # the kernel's p + (q - p) is q
-        return np.stack([x[r], far], axis=1)
 
     def _arguments(self, grid: CellGrid) -> tuple:
         g = grid.geometry
