@@ -125,6 +125,58 @@ def test_vicsek_fused_steps_match_single_launches(engine, monkeypatch, params):
             assert_same_announced_frame(monkeypatch, (vicsek, "FUSED_MAX_AGENTS"), single, fused, cfg.params.n)
 
 
+VICSEK_SERIAL = [
+    {"n": 60, "box": 6.0, "async_bound": 3, "boundary": "reflecting", "rule": "average", "max_turn_deg": 30.0},
+    {"n": 50, "box": 10.0, "async_bound": 4, "boundary": "open", "leader": {"enabled": True}},
+    {"n": 45, "box": 5.0, "async_bound": 2, "rule": "relative", "noise": 0.3},
+    {"n": 40, "box": 5.0, "async_bound": 3, "boundary": "open", "rule": "laplacian", "g": 100.0, "noise": 0.5,
+     "wrap_headings": False},
+]
+
+
+@pytest.mark.parametrize("params", VICSEK_SERIAL)
+def test_vicsek_serial_steps_match_single_launches(engine, monkeypatch, params):
+    """The asynchronous Vicsek step run k steps a launch on one thread (_serial_steps) against its own launches, one
+    step and one grid build each (SERIAL_MAX_AGENTS = 0): the same state, past views, cell order and metrics bit for
+    bit, with metrics between runs of 1-30 steps, a batch of 2 replicas too; and a frame's rows, which the launch
+    writes. The general step's other uses keep one launch a step (see Vicsek._serial)."""
+    import tflock.models.vicsek as vicsek
+
+    if engine.arch != "cpu":
+        pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
+    overrides = {f"params.{k}": v for k, v in params.items() if k != "leader"}
+    overrides.update({"params.leader.enabled": "leader" in params, "seed": 3, "engine.precision": PRECISION})
+    cfg = load_config(model="vicsek", overrides=overrides)
+    for replicas in (1, 2):
+        single = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
+        serial = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
+        assert serial._serial()
+        for steps in (1, 7, 2, 30):
+            with monkeypatch.context() as m:
+                m.setattr(vicsek, "SERIAL_MAX_AGENTS", 0)
+                for _ in range(steps):
+                    single.advance(1)
+                a = single.metrics() if replicas == 1 else single.replica_metrics()
+            serial.advance(steps)
+            b = serial.metrics() if replicas == 1 else serial.replica_metrics()
+            for name in ("pos", "theta", "ids", "turn", "updated", "omega", "hist_pos", "hist_theta"):
+                assert np.array_equal(getattr(single, name).to_numpy(), getattr(serial, name).to_numpy()), (steps, name)
+            for key in a:
+                assert np.array_equal(a[key], b[key]), (steps, key)
+        if replicas == 1:
+            assert_same_announced_frame(monkeypatch, (vicsek, "SERIAL_MAX_AGENTS"), single, serial, cfg.params.n)
+
+
+def test_vicsek_serial_steps_only_where_they_match(engine):
+    """Synchronous updates in open space and vectorial noise take the general step one launch a step: compiled into
+    one serial loop, their sums round differently (checked: 1 ulp in a few steps)."""
+    import tflock.models.vicsek as vicsek
+
+    for overrides in ({"params.boundary": "open"}, {"params.async_bound": 3, "params.noise_type": "vectorial"}):
+        cfg = load_config(model="vicsek", overrides={"params.n": 40, "params.box": 5.0, **overrides})
+        assert not vicsek.Vicsek(cfg.params, cfg.seed, engine)._serial(), overrides
+
+
 POTENTIAL_FUSED = [
     {"n": 60, "box": 8.0},
     {"n": 40, "box": 5.0, "dim": 3},

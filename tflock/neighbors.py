@@ -664,13 +664,14 @@ class CellGrid:
                 self.pos_sorted, self.coords_sorted, self.id_sorted, self.mixed, self.block_start, self.bounds,
                 self.anchor, self.rank_sort)
 
-    def count_builds(self, builds: int) -> None:
+    def count_builds(self, builds: int, runs: bool = True) -> None:
         """Count `builds` builds a model's kernel made with :func:`build_grid` (a grid of fixed layout), each followed
-        by :func:`cut_runs` into :meth:`run_buffer`: the runs there are the last build's."""
+        by :func:`cut_runs` into :meth:`run_buffer` (the runs there are then the last build's) where `runs`."""
         if self.bounded:
             raise ValueError("a bounded grid's layout is chosen on the host at each build")
         self.builds += builds
-        self._runs_build = self.builds
+        if runs:
+            self._runs_build = self.builds
 
     @functools.cached_property
     def max_side(self) -> int:

@@ -111,6 +111,9 @@ VECTOR_COUNTED = 4
 #: the lane-wise step runs all the steps between two observations in one launch (:func:`_lane_wise_steps`, on one
 #: thread) up to this many agents (replicas together), where launches cost more than the arithmetic
 FUSED_MAX_AGENTS = 4096
+#: the asynchronous step runs all the steps between two observations in one launch (:func:`_serial_steps`, on one
+#: thread) up to this many agents
+SERIAL_MAX_AGENTS = 1024
 TWO_PI = 2 * math.pi
 
 
@@ -136,6 +139,58 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
           payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(), ids: ti.types.ndarray(),
           turn: ti.types.ndarray(), updated: ti.types.ndarray(), omega: ti.types.ndarray(),
           hist_pos: ti.types.ndarray(), hist_theta: ti.types.ndarray()):
+    _general_step(t, seed, n, per_replica, radius, speed, noise, box, max_turn, inv_g, bound, rule, boundary, leader,
+                  asynchronous, vectorial, wrap, nc, n_buckets, start, mixed, order, id_sorted, pos_sorted,
+                  coords_sorted, payload, pos, theta, ids, turn, updated, omega, hist_pos, hist_theta)
+
+
+@ti.kernel
+def _serial_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, draw: ti.i32,
+                  n: ti.i32, per_replica: ti.i32, box: float, cell_size: float, nc: ti.i32, n_buckets: ti.i32,
+                  total_buckets: ti.i32, layout: ti.template(), dim: ti.template(),
+                  coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
+                  start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
+                  pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                  id_sorted: ti.types.ndarray(), mixed: ti.types.ndarray(), block_start: ti.types.ndarray(),
+                  bounds: ti.types.ndarray(), anchor: ti.types.ndarray(), by_rank: ti.template(),
+                  seed: ti.u32, radius: float, speed: float, noise: float, max_turn: float, inv_g: float,
+                  bound: ti.i32, rule: ti.template(), boundary: ti.template(), leader: ti.template(),
+                  asynchronous: ti.template(), vectorial: ti.template(), wrap: ti.template(),
+                  payload: ti.types.ndarray(), pos: ti.types.ndarray(), theta: ti.types.ndarray(),
+                  ids: ti.types.ndarray(), turn: ti.types.ndarray(), updated: ti.types.ndarray(),
+                  omega: ti.types.ndarray(), hist_pos: ti.types.ndarray(), hist_theta: ti.types.ndarray(),
+                  bits: ti.types.ndarray(), word_rank: ti.types.ndarray(), drawn: ti.types.ndarray(),
+                  slot: ti.types.ndarray()):
+    """`steps` steps t0 .. t0 + steps - 1 of :func:`_step` in one launch, on one thread, each after the build of its
+    grid (:func:`tflock.neighbors.build_grid`; none before the first with `ready`, the grid of the current positions
+    being built already), then the build of the state they make (what the metrics pass and a frame read). With
+    `draw`, the drawn agents' frame rows of that state, as :func:`_drawn_rows` writes them. The same launches' bodies
+    in the same order: every step computes what they compute, bit for bit."""
+    ti.loop_config(serialize=True)
+    for step in range(steps + 1):
+        if step > 0 or ready == 0:
+            build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, layout, dim, coords,
+                       bucket, counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
+                       block_start, bounds, anchor, by_rank)
+        if step < steps:
+            _general_step(t0 + step, seed, n, per_replica, radius, speed, noise, box, max_turn, inv_g, bound, rule,
+                          boundary, leader, asynchronous, vectorial, wrap, nc, n_buckets, start, mixed, order,
+                          id_sorted, pos_sorted, coords_sorted, payload, pos, theta, ids, turn, updated, omega,
+                          hist_pos, hist_theta)
+        elif draw:
+            _write_drawn_rows(n, id_sorted, order, bits, word_rank, pos_sorted, theta, updated, drawn, slot)
+
+
+@ti.func
+def _general_step(t, seed, n, per_replica, radius, speed, noise, box, max_turn, inv_g, bound, rule: ti.template(),
+                  boundary: ti.template(), leader: ti.template(), asynchronous: ti.template(),
+                  vectorial: ti.template(), wrap: ti.template(), nc, n_buckets, start: ti.template(),
+                  mixed: ti.template(), order: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(),
+                  coords_sorted: ti.template(), payload: ti.template(), pos: ti.template(), theta: ti.template(),
+                  ids: ti.template(), turn: ti.template(), updated: ti.template(), omega: ti.template(),
+                  hist_pos: ti.template(), hist_theta: ti.template()):
+    """The step of any rule, boundary and update scheme on the cell grid of the current positions (the general
+    kernel; see the class)."""
     for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
         th = theta[order[s]]
         sin_th, cos_th = sin_cos(th)
@@ -682,8 +737,15 @@ def _drawn_rows(n: ti.i32, id_sorted: ti.types.ndarray(), order: ti.types.ndarra
     ``drawn[1]`` heading vectors (cos, sin), ``drawn[2]`` (theta, 1 if updated), and their grid slots, by one pass
     over the grid's agents: sequential reads (the state is kept in the previous build's cell order, nearly the
     grid's), where looking each drawn agent up by id misses the cache every time. The lane-wise step writes these
-    rows itself for a frame ``draw_next`` announced, at no measurable cost in its ``_update``, which saves this
-    pass over all agents."""
+    rows itself for a frame ``draw_next`` announced, at no measurable cost in its ``_update``, and
+    :func:`_serial_steps` after its last build, which saves this launch."""
+    _write_drawn_rows(n, id_sorted, order, bits, word_rank, pos_sorted, theta, updated, drawn, slot)
+
+
+@ti.func
+def _write_drawn_rows(n, id_sorted: ti.template(), order: ti.template(), bits: ti.template(),
+                      word_rank: ti.template(), pos_sorted: ti.template(), theta: ti.template(),
+                      updated: ti.template(), drawn: ti.template(), slot: ti.template()):
     for s in range(n):
         r = drawn_rank(id_sorted[s], bits, word_rank)
         if r >= 0:
@@ -870,6 +932,9 @@ class Vicsek(GridModel):
         if steps > 0 and self._fused():
             self._fused_steps(steps, inv_g)
             return
+        if steps > 0 and self._serial():
+            self._serial_steps(steps, inv_g)
+            return
         for _ in range(steps):
             self._ensure_grid()
             if self.topological:
@@ -903,6 +968,34 @@ class Vicsek(GridModel):
     def _fused(self) -> bool:
         """Whether steps, and the grid builds between them, run in :func:`_lane_wise_steps`."""
         return self.lane_wise and self.n_total <= FUSED_MAX_AGENTS
+
+    def _serial(self) -> bool:
+        """Whether the asynchronous step, and the grid builds between steps, run in :func:`_serial_steps`: on the
+        CPU, up to :data:`SERIAL_MAX_AGENTS` agents. The general step's other uses (synchronous updates in open space,
+        vectorial noise) keep one launch a step: in one serial loop LLVM compiles their sums to other roundings (the
+        neighbour loop's reduction, the noise term's multiply-adds), and the trajectory must not depend on the
+        launches."""
+        return (self.asynchronous and self.params.noise_type != "vectorial" and self.engine.arch == "cpu"
+                and self.n_total <= SERIAL_MAX_AGENTS)
+
+    def _serial_steps(self, steps: int, inv_g: float) -> None:
+        """`steps` steps of the general kernel in one launch of :func:`_serial_steps`, and the grid of the state they
+        make (with the frame rows of a frame announced for it)."""
+        p, grid = self.params, self.grid
+        t0, ready = self.step_index, int(self._grid_step == self.step_index)
+        draw, bits, word_rank, drawn = self._draw_arguments(3, 2, made=t0 + steps)
+        drawing = self._drawn[1] if draw else None
+        _serial_steps(steps, t0, ready, draw, *grid.build_arguments(), self.seed, p.radius, p.speed, p.noise,
+                      math.radians(p.max_turn_deg), inv_g, p.async_bound, RULES[p.rule], boundary_code(p.boundary),
+                      p.leader.enabled, self.asynchronous, p.noise_type == "vectorial", p.wrap_headings,
+                      self.payload, self.pos, self.theta, self.ids, self.turn, self.updated, self.omega,
+                      self.hist_pos, self.hist_theta, bits, word_rank, drawn,
+                      drawing.slot if drawing is not None else word_rank)  # (an i32 array, unused without draw)
+        grid.count_builds(steps + 1 - ready, runs=False)
+        self.step_index = t0 + steps
+        self._grid_step = self.step_index
+        if drawing is not None:
+            drawing.located()
 
     def _ensure_grid(self) -> None:
         """The grid of the current positions; on the fused path with its runs and sorted headings, from one launch of
