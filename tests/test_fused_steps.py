@@ -99,30 +99,43 @@ def test_vicsek_fused_steps_match_single_launches(engine, monkeypatch, params):
     which the step writes."""
     import tflock.models.vicsek as vicsek
 
+    def compared(replicas: int) -> tuple[str, ...]:
+        # scratch too: the sums the last step used and, where the metrics pass sorted them, the headings (a batch's
+        # metrics do not: the fused launch has sorted the new state's, the single launches the last step's)
+        return ("pos", "theta", "trig", "ids", "turn", "updated", "sums") + (("payload",) if replicas == 1 else ())
+
+    assert_vicsek_runs_match(engine, monkeypatch, params, "FUSED_MAX_AGENTS", compared,
+                             lambda model: model.lane_wise and model.n_total <= vicsek.FUSED_MAX_AGENTS)
+
+
+def assert_vicsek_runs_match(engine, monkeypatch, params: dict, threshold: str, compared, takes_path) -> None:
+    """A Vicsek model of `params` stepped runs of 1-30 steps a launch against one stepped one launch a step (the
+    module's agent cap `threshold` of the runs' path patched to 0), with metrics between runs, one system and a batch
+    of 2 replicas: the arrays ``compared(replicas)`` and the metrics bit for bit, and an announced frame's rows.
+    `takes_path(model)`: the model takes the runs' path."""
+    import tflock.models.vicsek as vicsek
+
     overrides = {f"params.{k}": v for k, v in params.items() if k != "leader"}
     overrides.update({"params.leader.enabled": "leader" in params, "seed": 3, "engine.precision": PRECISION})
     cfg = load_config(model="vicsek", overrides=overrides)
     for replicas in (1, 2):
         single = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
-        fused = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
-        assert fused.lane_wise and fused.n_total <= vicsek.FUSED_MAX_AGENTS
+        runs = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
+        assert takes_path(runs)
         for steps in (1, 7, 2, 30):
             with monkeypatch.context() as m:
-                m.setattr(vicsek, "FUSED_MAX_AGENTS", 0)
+                m.setattr(vicsek, threshold, 0)
                 for _ in range(steps):
                     single.advance(1)
                 a = single.metrics() if replicas == 1 else single.replica_metrics()
-            fused.advance(steps)
-            b = fused.metrics() if replicas == 1 else fused.replica_metrics()
-            # scratch too: the sums the last step used and, where the metrics pass sorted them, the headings (a batch's
-            # metrics do not: the fused launch has sorted the new state's, the single launches the last step's)
-            scratch = ("sums", "payload") if replicas == 1 else ("sums",)
-            for name in ("pos", "theta", "trig", "ids", "turn", "updated", *scratch):
-                assert np.array_equal(getattr(single, name).to_numpy(), getattr(fused, name).to_numpy()), (steps, name)
+            runs.advance(steps)
+            b = runs.metrics() if replicas == 1 else runs.replica_metrics()
+            for name in compared(replicas):
+                assert np.array_equal(getattr(single, name).to_numpy(), getattr(runs, name).to_numpy()), (steps, name)
             for key in a:
                 assert np.array_equal(a[key], b[key]), (steps, key)
         if replicas == 1:
-            assert_same_announced_frame(monkeypatch, (vicsek, "FUSED_MAX_AGENTS"), single, fused, cfg.params.n)
+            assert_same_announced_frame(monkeypatch, (vicsek, threshold), single, runs, cfg.params.n)
 
 
 VICSEK_SERIAL = [
@@ -140,31 +153,11 @@ def test_vicsek_serial_steps_match_single_launches(engine, monkeypatch, params):
     step and one grid build each (SERIAL_MAX_AGENTS = 0): the same state, past views, cell order and metrics bit for
     bit, with metrics between runs of 1-30 steps, a batch of 2 replicas too; and a frame's rows, which the launch
     writes. The general step's other uses keep one launch a step (see Vicsek._serial)."""
-    import tflock.models.vicsek as vicsek
-
     if engine.arch != "cpu":
         pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
-    overrides = {f"params.{k}": v for k, v in params.items() if k != "leader"}
-    overrides.update({"params.leader.enabled": "leader" in params, "seed": 3, "engine.precision": PRECISION})
-    cfg = load_config(model="vicsek", overrides=overrides)
-    for replicas in (1, 2):
-        single = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
-        serial = vicsek.Vicsek(cfg.params, cfg.seed, engine, replicas=replicas)
-        assert serial._serial()
-        for steps in (1, 7, 2, 30):
-            with monkeypatch.context() as m:
-                m.setattr(vicsek, "SERIAL_MAX_AGENTS", 0)
-                for _ in range(steps):
-                    single.advance(1)
-                a = single.metrics() if replicas == 1 else single.replica_metrics()
-            serial.advance(steps)
-            b = serial.metrics() if replicas == 1 else serial.replica_metrics()
-            for name in ("pos", "theta", "ids", "turn", "updated", "omega", "hist_pos", "hist_theta"):
-                assert np.array_equal(getattr(single, name).to_numpy(), getattr(serial, name).to_numpy()), (steps, name)
-            for key in a:
-                assert np.array_equal(a[key], b[key]), (steps, key)
-        if replicas == 1:
-            assert_same_announced_frame(monkeypatch, (vicsek, "SERIAL_MAX_AGENTS"), single, serial, cfg.params.n)
+    names = ("pos", "theta", "ids", "turn", "updated", "omega", "hist_pos", "hist_theta")
+    assert_vicsek_runs_match(engine, monkeypatch, params, "SERIAL_MAX_AGENTS", lambda replicas: names,
+                             lambda model: model._serial())
 
 
 def test_vicsek_serial_steps_only_where_they_match(engine):
