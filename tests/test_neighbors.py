@@ -492,6 +492,38 @@ def test_small_dense_swarms_take_the_pairs_pass(engine):
     assert got["mean_neighbors"] == pytest.approx(want["mean_neighbors"]) and want["mean_neighbors"] > 10
 
 
+@pytest.mark.parametrize("boundary,dim,bounded", [("periodic", 2, False), ("reflecting", 2, False),
+                                                  ("open", 2, False), ("open", 2, True), ("periodic", 3, False)])
+def test_small_swarms_graph_in_one_launch(engine, monkeypatch, boundary, dim, bounded):
+    """At most SMALL_GRAPH_MAX agents: degrees and components from one launch on one thread, the brute-force
+    graph's, and the same numbers and roots as the parallel passes (SMALL_GRAPH_MAX = 0), one flock and many
+    clusters, the graph |r| < R (strict) too."""
+    import tflock.metrics as metrics
+
+    rng = np.random.default_rng(dim + len(boundary))
+    for kind, box in (("one flock", 12.0), ("many clusters", 40.0)):
+        x = swarm(kind, metrics.SMALL_GRAPH_MAX, dim, box, 1.0, rng, boundary).astype(engine.real)
+        if boundary == "open":
+            x -= np.asarray(box / 2, dtype=engine.real)
+        for strict in (False, True):
+            small = NeighbourGraph(built_grid(engine, x, boundary, box, 1.0, bounded=bounded), strict)
+            parallel = NeighbourGraph(built_grid(engine, x, boundary, box, 1.0, bounded=bounded), strict)
+            got = small.compute(1.0, box)
+            with monkeypatch.context() as m:
+                m.setattr(metrics, "SMALL_GRAPH_MAX", 0)
+                assert parallel.compute(1.0, box) == got
+            assert [a.tolist() for a in small._roots()] == [a.tolist() for a in parallel._roots()]
+            if not strict:
+                want = ref.graph_metrics(x, 1.0, boundary, box)
+                assert (got["clusters"], got["max_neighbors"]) == (want["clusters"], want["max_neighbors"])
+                assert got["largest_cluster"] == pytest.approx(want["largest_cluster"])
+                assert got["mean_neighbors"] == pytest.approx(want["mean_neighbors"])
+                if kind == "one flock":
+                    assert want["largest_cluster"] > 0.5 and want["mean_neighbors"] > 3
+                else:
+                    assert want["clusters"] > 5
+
+
 @pytest.mark.parametrize("boundary", ["periodic", "open"])
 @pytest.mark.parametrize("density", ["sparse", "dense"])
 def test_replica_components_match_brute_force(engine, boundary, density):

@@ -267,6 +267,13 @@ def _pair_union(n: ti.i32, r2: float, box: float, nc: ti.i32, n_buckets: ti.i32,
                 layout: ti.template(), dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
                 pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
                 pairs: ti.types.ndarray()):
+    pair_union(n, r2, box, nc, n_buckets, strict, layout, dim, start, mixed, pos_sorted, coords_sorted, parent, pairs)
+
+
+@ti.func
+def pair_union(n, r2, box, nc, n_buckets, strict: ti.template(), layout: ti.template(), dim: ti.template(),
+               start: ti.template(), mixed: ti.template(), pos_sorted: ti.template(), coords_sorted: ti.template(),
+               parent: ti.template(), pairs: ti.template()):
     """The pairs pass (see the module) on a model's grid: each slot joins its neighbours at smaller slots;
     ``pairs[s]``: how many there are (their sum is the number of edges)."""
     for s in range(n):
@@ -294,7 +301,12 @@ SIZE_CHUNK = 256
 
 @ti.kernel
 def _pair_sizes(n: ti.i32, parent: ti.types.ndarray(), size: ti.types.ndarray(), result: ti.types.ndarray()):
-    """After :func:`_pair_union`: every slot's parent made its root, each root's set size, and result[0] the
+    pair_sizes(n, parent, size, result)
+
+
+@ti.func
+def pair_sizes(n, parent: ti.template(), size: ti.template(), result: ti.template()):
+    """After :func:`pair_union`: every slot's parent made its root, each root's set size, and result[0] the
     number of sets, result[1] the largest. In a flock neighbouring slots share a root: one atomic add per run of
     them, not per slot, keeps the threads off that root's counter."""
     for s in range(n):

@@ -3,9 +3,9 @@
 Reductions are deterministic: floating-point sums run over fixed blocks of agents inside a kernel and the block
 partials are added in NumPy (plain sums and means on the CPU: NumPy over the ndarray's memory), so metrics do not
 change with the thread count. Clusters are the connected components of the graph |x_i - x_j| <= R, found on a
-grid of sub-cells by a lock-free parallel union-find (:mod:`tflock.subcells`); on Vulkan, whose compiler
-mishandles that union-find, by rounds of smallest labels. Degrees are counted per agent without atomics, or taken
-from a model step's own neighbour pass.
+grid by a lock-free parallel union-find (:mod:`tflock.components`; a small swarm's on one thread, with its degrees,
+in one launch); on Vulkan, whose compiler mishandles that union-find, by rounds of smallest labels. Degrees are
+counted per agent without atomics, or taken from a model step's own neighbour pass.
 """
 
 
@@ -15,7 +15,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from tflock.components import Components, near
+from tflock.components import Components, near, pair_sizes, pair_union
 from tflock.engine import current_engine
 from tflock.lane_graph import count_roots
 from tflock.neighbors import (
@@ -32,6 +32,9 @@ from tflock.space import OPEN, displacement, wrap_pi
 from tflock.taichi_host import host_array, host_view
 
 BLOCK = 4096
+#: swarms of at most this many agents take their degrees and components in one launch on one thread
+#: (:func:`_small_graph`): the parallel passes' launches cost more than the arithmetic
+SMALL_GRAPH_MAX = 128
 
 
 def n_blocks(n: int) -> int:
@@ -82,6 +85,33 @@ def _tally(n, parent: ti.template(), size: ti.template(), result: ti.template())
 def _degrees(n: ti.i32, radius: float, box: float, nc: ti.i32, n_buckets: ti.i32, boundary: ti.template(),
              dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
              coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(), degree: ti.types.ndarray()):
+    _count_degrees(n, radius, box, nc, n_buckets, boundary, dim, start, mixed, pos_sorted, coords_sorted, id_sorted,
+                   degree)
+
+
+@ti.kernel
+def _small_graph(n: ti.i32, radius: float, r2: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+                 boundary: ti.template(), dim: ti.template(), strict: ti.template(), start: ti.types.ndarray(),
+                 mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                 id_sorted: ti.types.ndarray(), degree: ti.types.ndarray(), parent: ti.types.ndarray(),
+                 size: ti.types.ndarray(), pairs: ti.types.ndarray(), result: ti.types.ndarray()):
+    """A small swarm's graph metrics in one launch on one thread (a launch costs more than their arithmetic): the
+    degrees of :func:`_degrees` and the components of the pairs pass (:func:`tflock.components.pair_union`,
+    :func:`~tflock.components.pair_sizes`; `r2` as :class:`~tflock.components.Components` squares R), the same
+    integers."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        _count_degrees(n, radius, box, nc, n_buckets, boundary, dim, start, mixed, pos_sorted, coords_sorted,
+                       id_sorted, degree)
+        pair_union(n, r2, box, nc, n_buckets, strict, boundary, dim, start, mixed, pos_sorted, coords_sorted, parent,
+                   pairs)
+        pair_sizes(n, parent, size, result)
+
+
+@ti.func
+def _count_degrees(n, radius, box, nc, n_buckets, boundary: ti.template(), dim: ti.template(), start: ti.template(),
+                   mixed: ti.template(), pos_sorted: ti.template(), coords_sorted: ti.template(),
+                   id_sorted: ti.template(), degree: ti.template()):
     """Each agent's neighbour count (agent order, itself excluded), counted from its own stencil: branch-free,
     no atomics."""
     for s in range(n):
@@ -198,6 +228,17 @@ class NeighbourGraph:
         clusters, largest = (int(v) for v in self.result.to_numpy())
         return clusters, largest
 
+    def _small(self, radius: float, box: float) -> tuple[int, int]:
+        """:meth:`degrees` and :meth:`components` of a swarm of at most :data:`SMALL_GRAPH_MAX` agents, by
+        :func:`_small_graph` (the pairs pass, as :class:`~tflock.components.Components` takes it)."""
+        g, grid, found = self.grid.geometry, self.grid, self._found(radius)
+        _small_graph(grid.n, radius, radius**2, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, self.strict,
+                     grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.degree,
+                     found.parent, found.size, found.pairs, found.result)
+        found.slot_grid = grid
+        clusters, largest, _ = (int(v) for v in host_array(found.result))
+        return clusters, largest
+
     def _roots(self) -> tuple[np.ndarray, np.ndarray]:
         """After :meth:`components`: the grid slot and the size of each component's root."""
         if self.in_rounds:
@@ -215,10 +256,15 @@ class NeighbourGraph:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions; `degree`:
         the agents' neighbour counts, in any order, where the model has them already."""
         n = self.grid.n
-        if degree is None:
-            degree = self.degrees(radius, box)
-        mean_degree = mean(degree, n)
-        clusters, largest = self.components(radius, box, mean_degree)
+        if degree is None and n <= SMALL_GRAPH_MAX and not self.in_rounds:
+            clusters, largest = self._small(radius, box)
+            degree = self.degree
+            mean_degree = mean(degree, n)
+        else:
+            if degree is None:
+                degree = self.degrees(radius, box)
+            mean_degree = mean(degree, n)
+            clusters, largest = self.components(radius, box, mean_degree)
         return {
             "clusters": float(clusters),
             "largest_cluster": largest / n,
