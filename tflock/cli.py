@@ -8,6 +8,7 @@ recording up to the last logged frame.
 
 from __future__ import annotations
 
+import gc
 import signal
 import sys
 import time
@@ -155,6 +156,9 @@ def sim(
         err.print("interrupted during start-up", highlight=False)
         raise typer.Exit(130)
     t_ready = time.perf_counter()
+    # one run per process: what start-up made (modules, Taichi's and Rerun's objects) lives as long as the run, so
+    # the garbage collector's full passes, which the run's allocations trigger now and then, need not scan it again
+    gc.freeze()
     interrupted = False
     first_step_s = 0.0
     t_loop = t_ready
