@@ -15,13 +15,15 @@ checkout's speed-up over the first one given.
 
 With ``--recorded CONFIG ...`` it times paper configs as a user runs them instead: per repeat and checkout, a fresh
 process builds ``Simulation(config, record=PATH)`` (its start-up) and times its ``run()`` and ``close()``, the
-checkouts alternating; it prints and writes each one's seconds.
+checkouts alternating; it prints and writes each one's seconds. With ``--cli`` too, each run is ``tflock sim
+--config CONFIG --out PATH`` and the run's time is the wall time its summary reports less its start-up.
 """
 
 import argparse
 import json
 import os
 import platform
+import re
 import statistics
 import subprocess
 import sys
@@ -84,14 +86,34 @@ def recorded_worker(config: str, out: str) -> None:
     print(json.dumps({"start_up_s": t1 - t0, "run_close_s": time.perf_counter() - t1}), flush=True)
 
 
-def run_recorded(trees: dict[str, Path], config: str, repeats: int, scratch: Path) -> dict:
-    """`repeats` runs of a paper config with its recording in each checkout, alternating."""
+def cli_run(tree: Path, config: str, out: Path) -> dict:
+    """`tflock sim --config CONFIG --out OUT` of a checkout, as a user runs it: the start-up and the wall time its
+    summary reports, the run (their difference: the steps, metrics, frames and closing the files) and the process's
+    own wall time (imports included)."""
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "tflock", "sim", "--config", str(tree / config), "--out", str(out)],
+                          cwd=tree, env={**os.environ, "PYTHONPATH": str(tree), "COLUMNS": "200"},
+                          capture_output=True, text=True, check=True)
+    process = time.perf_counter() - t0
+    summary = done.stdout + done.stderr
+    start_up, wall = (float(re.search(rf"{name}\s*│\s*([0-9.]+) s", summary).group(1))
+                      for name in ("start-up", "wall time"))
+    return {"start_up_s": start_up, "run_close_s": round(wall - start_up, 3), "wall_s": wall,
+            "process_s": round(process, 3)}
+
+
+def run_recorded(trees: dict[str, Path], config: str, repeats: int, scratch: Path, cli: bool = False) -> dict:
+    """`repeats` runs of a paper config with its recording in each checkout, alternating; `cli`: each run is
+    :func:`cli_run`."""
     row: dict = {"config": config, **{label: [] for label in trees}}
     for _ in range(repeats):
         for label, tree in trees.items():
             out = scratch / f"{label}.rrd"
             for old in (out, out.with_suffix(".metrics.csv")):
                 old.unlink(missing_ok=True)
+            if cli:
+                row[label].append(cli_run(tree, config, out))
+                continue
             done = subprocess.run([sys.executable, __file__, "--recorded-worker", str(tree / config), str(out)],
                                   cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)}, capture_output=True,
                                   text=True, check=True)
@@ -155,6 +177,7 @@ def main() -> None:
     ap.add_argument("--recorded", nargs="+", default=None, metavar="CONFIG",
                     help="time these configs with their recordings (run + close) instead of the step cases")
     ap.add_argument("--repeats", type=int, default=3, help="runs of each recorded config per checkout")
+    ap.add_argument("--cli", action="store_true", help="with --recorded: run each as `tflock sim --config CONFIG`")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     trees = {label: Path(path).resolve() for label, path in (t.split("=", 1) for t in a.tree)}
@@ -163,9 +186,10 @@ def main() -> None:
     if a.recorded:
         with tempfile.TemporaryDirectory() as scratch:
             for config in a.recorded:
-                row = run_recorded(trees, config, a.repeats, Path(scratch))
+                row = run_recorded(trees, config, a.repeats, Path(scratch), a.cli)
                 rows.append(row)
-                print(f"{Path(config).stem:28s} run + close, s: " + "  ".join(
+                what = "tflock sim, wall - start-up" if a.cli else "run + close"
+                print(f"{Path(config).stem:28s} {what}, s: " + "  ".join(
                     f"{label} " + ", ".join(f"{r['run_close_s']:.2f}" for r in row[label]) for label in trees),
                     flush=True)
     for name, n in [] if a.recorded else CASES:  # the step cases, unless recorded configs were asked for
