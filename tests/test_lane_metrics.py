@@ -162,3 +162,24 @@ def test_sampled_pair_errors_are_the_documented_draws(engine, boundary):
     assert got == pytest.approx(expected, rel=1e-6)
     exact = ref.pairwise_errors(x, theta, boundary, p.box)
     assert got == pytest.approx(exact, rel=0.02)  # an estimate of the mean over all pairs
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting", "open"])
+def test_small_swarms_orders_and_pairs_in_one_launch(engine, boundary):
+    """Up to SMALL_GRAPH_MAX agents the heading sums and e_d, e_theta come from one launch on one thread: the
+    reference's values, and bit for bit those of the two parallel passes."""
+    from tflock.metrics import SMALL_GRAPH_MAX, heading_order, orders_and_pairs
+
+    for n in (2, 37, SMALL_GRAPH_MAX):
+        cfg = config(n, 6.0, boundary, **{"params.async_bound": 2})
+        model = Vicsek(cfg.params, cfg.seed, engine)
+        model.advance(4)
+        p, code = model.params, boundary_code(boundary)
+        got = orders_and_pairs(model.theta, model.pos, n, 0.5, p.box, code, 2, model.seed, model.step_index)
+        parallel = (heading_order(model.theta, n, 0.5),
+                    pairwise_errors(model.pos, model.theta, n, p.box, code, 2, model.seed, model.step_index))
+        assert got == parallel, n
+        x, theta = model.pos.to_numpy().T, model.theta.to_numpy()
+        assert got[1] == pytest.approx(ref.pairwise_errors(x, theta, boundary, p.box), rel=1e-5)
+        unit = np.stack([np.cos(theta), np.sin(theta)], axis=1).astype(np.float64)
+        assert got[0][0] == pytest.approx(np.hypot(*unit.mean(axis=0)), abs=1e-5)

@@ -43,6 +43,12 @@ def n_blocks(n: int) -> int:
 
 @ti.kernel
 def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, reference: float, partial: ti.types.ndarray()):
+    _angle_sums(theta, n, reference, partial)
+
+
+@ti.func
+def _angle_sums(theta: ti.template(), n, reference, partial: ti.template()):
+    """Per block of BLOCK agents: the sums of cos theta, sin theta and |wrap(theta - reference)|."""
     for blk in range(partial.shape[0]):
         c = 0.0
         s = 0.0
@@ -349,6 +355,24 @@ def _pair_terms(pos: ti.template(), theta: ti.template(), i, j, box, boundary: t
 @ti.kernel
 def _pairs_exact(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, box: float,
                  boundary: ti.template(), dim: ti.template(), partial: ti.types.ndarray()):
+    _pair_sums(pos, theta, n, box, boundary, dim, partial)
+
+
+@ti.kernel
+def _small_orders(theta: ti.types.ndarray(), pos: ti.types.ndarray(), n: ti.i32, reference: float, box: float,
+                  boundary: ti.template(), dim: ti.template(), headings: ti.types.ndarray(),
+                  partial: ti.types.ndarray()):
+    """:func:`_angle_block_sums` and :func:`_pairs_exact` of a small swarm in one launch on one thread."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        _angle_sums(theta, n, reference, headings)
+        _pair_sums(pos, theta, n, box, boundary, dim, partial)
+
+
+@ti.func
+def _pair_sums(pos: ti.template(), theta: ti.template(), n, box, boundary: ti.template(), dim: ti.template(),
+               partial: ti.template()):
+    """partial[i]: the sums of the pair terms of agent i with the later agents (distance, heading difference)."""
     for i in range(n):
         dist = 0.0
         angle = 0.0
@@ -411,6 +435,22 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
     partial = scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
     return tuple(host_array(partial).astype(np.float64).sum(axis=0) / SAMPLED_PAIRS)
+
+
+def orders_and_pairs(theta: ti.Ndarray, pos: ti.Ndarray, n: int, reference: float, box: float, boundary: int,
+                     dim: int, seed: int, step: int) -> tuple[tuple[float, float, float], tuple[float, float]]:
+    """:func:`heading_order` and :func:`pairwise_errors` of the same state; on the CPU a swarm of at most
+    :data:`SMALL_GRAPH_MAX` agents takes both passes in one launch on one thread (:func:`_small_orders`)."""
+    engine = current_engine()
+    if n > SMALL_GRAPH_MAX or n < 2 or engine is None or engine.arch != "cpu":
+        return heading_order(theta, n, reference), pairwise_errors(pos, theta, n, box, boundary, dim, seed, step)
+    headings = scratch((n_blocks(n), 3), theta.dtype)
+    partial = scratch((n, 2), pos.dtype)
+    _small_orders(theta, pos, n, reference, box, boundary, dim, headings, partial)
+    c, s, gap = host_array(headings).astype(np.float64).sum(axis=0)
+    dist, angle = host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2)
+    order = (float(math.hypot(c, s) / n), float(math.atan2(s, c) % (2 * math.pi)), float(gap))
+    return order, (float(dist), float(angle))
 
 
 @ti.kernel

@@ -61,6 +61,7 @@ from tflock.metrics import (
     NeighbourGraph,
     heading_order,
     mean,
+    orders_and_pairs,
     pairwise_errors,
     replica_pairwise_errors,
     scratch,
@@ -1049,16 +1050,17 @@ class Vicsek(GridModel):
         p = self.params
         self._ensure_grid()
         leader_heading = float(self._leader_row()[2]) if p.leader.enabled else 0.0
+        boundary = boundary_code(p.boundary)
         if self.components is not None:
             out = self._lane_wise_metrics()
             if p.leader.enabled:
                 leader_gap = heading_order(self.theta, p.n, leader_heading)[2]
+            pairs = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary, 2, self.seed, self.step_index)
         else:
-            polarization, mean_heading, leader_gap = heading_order(self.theta, p.n, leader_heading)
+            (polarization, mean_heading, leader_gap), pairs = orders_and_pairs(
+                self.theta, self.pos, p.n, leader_heading, p.box, boundary, 2, self.seed, self.step_index)
             out = {"polarization": polarization, "mean_heading": mean_heading}
             out.update(self.graph.compute(p.radius, p.box))
-        pairs = pairwise_errors(self.pos, self.theta, p.n, p.box, boundary_code(p.boundary), 2, self.seed,
-                                self.step_index)
         out.update(zip(self._pair_names, pairs, strict=True))
         out.update(de_theta=mean(self.turn, p.n), updated=mean(self.updated, p.n))
         if p.leader.enabled:  # the leader's own term is 0
