@@ -359,6 +359,15 @@ def _pairs_exact(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, 
 
 
 @ti.kernel
+def _small_pairs(pos: ti.types.ndarray(), theta: ti.types.ndarray(), n: ti.i32, box: float,
+                 boundary: ti.template(), dim: ti.template(), partial: ti.types.ndarray()):
+    """:func:`_pairs_exact` of a small swarm on one thread (a parallel loop waits for Taichi's thread pool)."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        _pair_sums(pos, theta, n, box, boundary, dim, partial)
+
+
+@ti.kernel
 def _small_orders(theta: ti.types.ndarray(), pos: ti.types.ndarray(), n: ti.i32, reference: float, box: float,
                   boundary: ti.template(), dim: ti.template(), headings: ti.types.ndarray(),
                   partial: ti.types.ndarray()):
@@ -422,15 +431,18 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
     """Samiloglu-Gazi-Koku section V: e_d, the mean pairwise distance (minimum image when periodic), and
     e_theta, the mean pairwise circular heading difference |wrap(theta_i - theta_j)| in [0, pi].
 
-    Exact for n <= EXACT_PAIRS_MAX (and then invariant to the order of the agents); above, the mean over
-    SAMPLED_PAIRS uniformly drawn pairs of array elements (unbiased; drawn from (seed, step, sample), so the
-    estimate is reproducible: the arrays' order is the same whatever the thread count).
+    Exact for n <= EXACT_PAIRS_MAX (and then invariant to the order of the agents; on the CPU on one thread up to
+    SMALL_GRAPH_MAX agents, the same sums); above, the mean over SAMPLED_PAIRS uniformly drawn pairs of array
+    elements (unbiased; drawn from (seed, step, sample), so the estimate is reproducible: the arrays' order is the
+    same whatever the thread count).
     """
     if n < 2:
         return 0.0, 0.0
     if n <= EXACT_PAIRS_MAX:
         partial = scratch((n, 2), pos.dtype)
-        _pairs_exact(pos, theta, n, box, boundary, dim, partial)
+        engine = current_engine()
+        small = n <= SMALL_GRAPH_MAX and engine is not None and engine.arch == "cpu"
+        (_small_pairs if small else _pairs_exact)(pos, theta, n, box, boundary, dim, partial)
         return tuple(host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
     partial = scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
