@@ -32,8 +32,9 @@ from tflock.space import OPEN, displacement, wrap_pi
 from tflock.taichi_host import host_array, host_view
 
 BLOCK = 4096
-#: swarms of at most this many agents take their degrees and components in one launch on one thread
-#: (:func:`_small_graph`): the parallel passes' launches cost more than the arithmetic
+#: swarms of at most this many agents take their degrees and components (and Vicsek's heading and pair sums) in one
+#: launch on one CPU thread (:func:`_small_graph`, :func:`_small_orders`): the parallel passes' launches cost more
+#: than the arithmetic
 SMALL_GRAPH_MAX = 128
 
 
@@ -197,6 +198,7 @@ class NeighbourGraph:
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
         self.in_rounds = engine is not None and engine.arch == "vulkan"
+        self.small_on_one_thread = engine is not None and engine.arch == "cpu"  # a GPU thread alone is slow
         if self.in_rounds:
             self.parent = ti.ndarray(ti.i32, n)
             self.size = ti.ndarray(ti.i32, n)
@@ -262,7 +264,7 @@ class NeighbourGraph:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions; `degree`:
         the agents' neighbour counts, in any order, where the model has them already."""
         n = self.grid.n
-        if degree is None and n <= SMALL_GRAPH_MAX and not self.in_rounds:
+        if degree is None and n <= SMALL_GRAPH_MAX and self.small_on_one_thread:
             clusters, largest = self._small(radius, box)
             degree = self.degree
             mean_degree = mean(degree, n)

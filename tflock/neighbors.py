@@ -60,7 +60,8 @@ _HASH = (73856093, 19349663, 83492791)
 SCAN_BLOCK = 1024  # buckets per block of the grid build's prefix sum
 #: layout code of a bounded open-space grid (see CellGrid): not a boundary (its displacement is the plain difference)
 BOUNDED = 3
-#: a frame of at most this many drawn agents finds its edges from all their pairs (see DrawnEdges)
+#: a frame of at most this many drawn agents finds its edges from all their pairs on one CPU thread, where a grid's
+#: launches cost more (see DrawnEdges)
 ALL_PAIRS_ROWS = 128
 #: buckets a periodic box's window grid may use at least (see CellGrid)
 WINDOW_MIN_BUCKETS = 4096
@@ -909,7 +910,8 @@ class DrawnEdges:
         m = len(positions)
         if m < 2 or max_edges <= 0:
             return np.zeros((0, 2, self.dim), dtype=self.real)
-        if m <= ALL_PAIRS_ROWS:  # a grid's launches cost more than all the pairs of so few rows
+        engine = current_engine()
+        if m <= ALL_PAIRS_ROWS and engine is not None and engine.arch == "cpu":  # (a GPU thread alone is slow)
             edges = np.empty((min(max_edges, m * (m - 1) // 2), 2, self.dim), dtype=self.real)
             count = np.zeros(1, dtype=np.int32)
             _all_pairs(m, self.radius, self.box, max_edges, boundary_code(self.boundary), self.dim,

@@ -166,7 +166,8 @@ def _serial_steps(steps: ti.i32, t0: ti.i32, ready: ti.i32, draw: ti.i32,
     grid (:func:`tflock.neighbors.build_grid`; none before the first with `ready`, the grid of the current positions
     being built already), then the build of the state they make (what the metrics pass and a frame read). With
     `draw`, the drawn agents' frame rows of that state, as :func:`_drawn_rows` writes them. The same launches' bodies
-    in the same order: every step computes what they compute, bit for bit."""
+    in the same order: for the runs that take it (``Vicsek._serial``) every step computes what they compute, bit for
+    bit."""
     ti.loop_config(serialize=True)
     for step in range(steps + 1):
         if step > 0 or ready == 0:
@@ -495,81 +496,58 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
     tflock.lane_graph; LaneComponents.finish completes them)."""
     ti.loop_config(block_dim=1)  # a stripe a task
     for j in range(n_stripes):
-        _stripe_sums_graph(j, n_stripes, layers, layer_buckets, nc, radius, box, rule, boundary, start, run_end,
-                           pos_sorted, payload, sums, parent, size)
-
-
-@ti.kernel
-def _one_stripe_sums_graph(layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, radius: float, box: float,
-                           rule: ti.template(), boundary: ti.template(), start: ti.types.ndarray(),
-                           run_end: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
-                           sums: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
-    """:func:`_neighbour_sums_graph` of one stripe on the calling thread: a parallel loop of one task still waits
-    for Taichi's thread pool."""
-    ti.loop_config(serialize=True)
-    for j in range(1):
-        _stripe_sums_graph(j, 1, layers, layer_buckets, nc, radius, box, rule, boundary, start, run_end, pos_sorted,
-                           payload, sums, parent, size)
-
-
-@ti.func
-def _stripe_sums_graph(j, n_stripes, layers, layer_buckets, nc, radius, box, rule: ti.template(),
-                       boundary: ti.template(), start: ti.template(), run_end: ti.template(),
-                       pos_sorted: ti.template(), payload: ti.template(), sums: ti.template(), parent: ti.template(),
-                       size: ti.template()):
-    """Stripe j of :func:`_neighbour_sums_graph`."""
-    r2 = radius * radius
-    b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
-    for b in range(b_lo, b_hi):
-        row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-        wraps = run_wraps(row, x0, x1, nc, boundary)
-        for block in range((a1 - a0 + LANES - 1) // LANES):
-            i0 = a0 + block * LANES
-            i1 = ti.min(i0 + LANES, a1)
-            px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
-            py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
-            th = lanes(payload, 2, i0, a1 - 1, LANES)
-            acc_a = ti.Vector([0.0] * LANES)
-            acc_b = ti.Vector([0.0] * LANES)
-            count = ti.Vector([0.0] * LANES)
-            label = ti.Vector([NO_LABEL] * LANES)
-            other = ti.Vector([NO_LABEL] * LANES)
-            inmask = ti.Vector([0] * LANES)
-            for r in range(3):
-                b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
-                for h in range(2):
-                    begin = ti.select(h == 0, b0, b1)
-                    end = ti.select(h == 0, e0, e1)
-                    if wraps:
-                        acc_a, acc_b, count, label, other, inmask = _stencil_graph(
-                            begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
-                            box, pos_sorted, payload, parent, rule, True)
-                    else:
-                        acc_a, acc_b, count, label, other, inmask = _stencil_graph(
-                            begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
-                            box, pos_sorted, payload, parent, rule, False)
-            for k in ti.static(range(LANES)):
-                if i0 + k < a1:
-                    sums[0, i0 + k] = acc_a[k]
-                    sums[1, i0 + k] = acc_b[k]
-                    sums[2, i0 + k] = count[k]
-            roots, recheck = block_roots(i1 - i0, label, other, parent, size)
-            while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
-                bit = recheck & (-recheck)
-                q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
-                p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
-                root = -1
+        r2 = radius * radius
+        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+        for b in range(b_lo, b_hi):
+            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+            wraps = run_wraps(row, x0, x1, nc, boundary)
+            for block in range((a1 - a0 + LANES - 1) // LANES):
+                i0 = a0 + block * LANES
+                i1 = ti.min(i0 + LANES, a1)
+                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+                th = lanes(payload, 2, i0, a1 - 1, LANES)
+                acc_a = ti.Vector([0.0] * LANES)
+                acc_b = ti.Vector([0.0] * LANES)
+                count = ti.Vector([0.0] * LANES)
+                label = ti.Vector([NO_LABEL] * LANES)
+                other = ti.Vector([NO_LABEL] * LANES)
+                inmask = ti.Vector([0] * LANES)
                 for r in range(3):
                     b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
                     for h in range(2):
-                        first = ti.max(s_lo, ti.select(h == 0, b0, b1))
-                        for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
-                            d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
-                            if d.norm_sqr() <= r2:
-                                root = join_candidate(root, k, parent, size)
-                roots[q] = root
-                recheck ^= bit
-            settle_block(i0, i1 - i0, roots, inmask, parent, size)
+                        begin = ti.select(h == 0, b0, b1)
+                        end = ti.select(h == 0, e0, e1)
+                        if wraps:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, True)
+                        else:
+                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                box, pos_sorted, payload, parent, rule, False)
+                for k in ti.static(range(LANES)):
+                    if i0 + k < a1:
+                        sums[0, i0 + k] = acc_a[k]
+                        sums[1, i0 + k] = acc_b[k]
+                        sums[2, i0 + k] = count[k]
+                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                    bit = recheck & (-recheck)
+                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                    p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
+                    root = -1
+                    for r in range(3):
+                        b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                        for h in range(2):
+                            first = ti.max(s_lo, ti.select(h == 0, b0, b1))
+                            for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
+                                d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
+                                if d.norm_sqr() <= r2:
+                                    root = join_candidate(root, k, parent, size)
+                    roots[q] = root
+                    recheck ^= bit
+                settle_block(i0, i1 - i0, roots, inmask, parent, size)
 
 
 @ti.func
@@ -1118,13 +1096,9 @@ class Vicsek(GridModel):
         if self._headed != (self.step_index, grid.builds):
             _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
-        n_stripes, layers, layer_buckets = self.components.stripes()
-        arguments = (g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(), grid.pos_sorted,
-                     self.payload, self.sums, self.components.parent, self.components.size)
-        if n_stripes == 1:
-            _one_stripe_sums_graph(layers, layer_buckets, *arguments)
-        else:
-            _neighbour_sums_graph(n_stripes, layers, layer_buckets, *arguments)
+        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
+                              grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
+                              self.components.parent, self.components.size)
         self._summed = (self.step_index, grid.builds)
         radius = self.grid.real(p.radius)  # R^2 as the pass above squares it, in the run's precision
         clusters, largest = self.components.finish(float(radius * radius), p.box, boundary)
