@@ -4,7 +4,7 @@ so runs are bit-identical; signatures (template values, dtypes) pick their own i
 import numpy as np
 import pytest
 import taichi as ti
-from conftest import assert_same_run
+from conftest import PRECISION, assert_same_run
 from taichi.lang.kernel_impl import Kernel
 
 
@@ -90,3 +90,22 @@ def test_bound_contexts_follow_their_ndarrays(cpu_engine):
         del dst
     plans = [p for key, p in _scaled._primal._tflock_plans.items() if key[1] is float and p.bound is not None]
     assert plans and all(len(p.bound) <= BOUND_CONTEXTS for p in plans)
+
+
+@ti.kernel
+def _signed(x: float, y: ti.i32, out: ti.types.ndarray()):
+    out[0] = ti.atan2(x, -1.0)  # pi for +0.0, -pi for -0.0
+    out[1] = x * y
+
+
+def test_bound_contexts_set_what_changed(cpu_engine):
+    """A bound context keeps the scalars of its last launch and sets those that changed: every call computes from
+    the values it is given, repeated or not, a signed zero and a nan included."""
+    out = ti.ndarray(ti.f64 if PRECISION == "f64" else ti.f32, 2)
+    real = np.float64 if PRECISION == "f64" else np.float32
+    for x, y in [(2.0, 3), (2.0, 3), (2.0, 4), (0.0, 4), (-0.0, 4), (-0.0, 4), (0.0, 4), (float("nan"), 1),
+                 (float("nan"), 1), (np.float64(2.0), 3), (np.float32(1.5), 2), (1.5, 2)]:
+        _signed(x, y, out)
+        got = out.to_numpy()
+        assert got[0] == pytest.approx(real(np.arctan2(real(x), -1.0)), nan_ok=True), (x, y)
+        assert np.array_equal(got[1], real(x) * real(y), equal_nan=True), (x, y)

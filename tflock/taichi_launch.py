@@ -15,8 +15,9 @@ every result, is the same bit for bit; only the Python work around it shrinks.
 
 On the CPU a plan also keeps launch contexts *bound* to the Taichi ndarrays it was called with: each ndarray is set
 once, as the address, size and shape of its host memory (what Taichi's CPU launcher makes of an ndarray argument at
-every launch), and a later call with the same ndarrays sets only its other arguments. A model's step passes the same
-tens of ndarrays at every step, and setting each one through Taichi's bindings costs microseconds.
+every launch), and a later call with the same ndarrays sets only its other arguments, its scalars only where their
+values changed since that context's last launch. A model's step passes the same tens of ndarrays at every step, and
+setting each argument through Taichi's bindings costs about a microsecond or more.
 
 A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
 ndarray arguments that are Taichi scalar ndarrays without gradients or C-contiguous NumPy arrays of scalars (set as
@@ -43,6 +44,7 @@ from tflock.taichi_host import CPU_ARCHES, host_view
 
 #: launch contexts a plan keeps bound to sets of ndarrays (a model alternating buffers uses two or three)
 BOUND_CONTEXTS = 8
+_UNSET = object()  # a bound context's scalar not yet set
 _TEMPLATE_VALUES = (bool, int, float, str, type(None))
 #: scalar arguments a plan sets (NumPy's scalars too: a model's host arithmetic often yields them)
 _SCALARS = (bool, int, float, np.float64, np.float32, np.int64, np.int32)
@@ -97,6 +99,7 @@ class _Bound:
     def __init__(self, plan: _Plan, arrays: tuple) -> None:
         self.refs = tuple(weakref.ref(array) for array in arrays)
         self.ctx = plan.t_kernel.make_launch_context()
+        self.scalars: list[Any] = [_UNSET] * len(plan.scalar_setters)  # the values the context holds
         for slot, array in zip(plan.array_slots, arrays, strict=True):
             view = host_view(array)
             self.ctx.set_arg_external_array_with_shape((slot,), int(view.ctypes.data), view.nbytes, view.shape, 0)
@@ -118,7 +121,8 @@ class _Plan:
         self.setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # every non-template argument's
         self.array_positions: list[int] = []  # where the Taichi ndarrays are among the arguments
         self.array_slots: list[int] = []  # and among the kernel's parameters
-        self.other_setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # the rest's, set at every launch
+        self.scalar_setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # set when their values change
+        self.external_setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # NumPy arrays: at every launch
         self.bound: dict[tuple[int, ...], _Bound] | None = {} if impl.current_cfg().arch in CPU_ARCHES else None
         self.valid = kernel.return_type is None and not getattr(kernel, "has_print", False)
         slot = 0
@@ -133,8 +137,10 @@ class _Plan:
             if type(arg) is ScalarNdarray:
                 self.array_positions.append(position)
                 self.array_slots.append(slot)
+            elif type(arg) is np.ndarray:
+                self.external_setters.append((position, setter))
             else:
-                self.other_setters.append((position, setter))
+                self.scalar_setters.append((position, setter))
             slot += 1
 
     def launch(self, kernel: Kernel, args: tuple) -> None:
@@ -151,7 +157,14 @@ class _Plan:
                     del self.bound[next(iter(self.bound))]
                 bound = self.bound[key] = _Bound(self, arrays)
             ctx = bound.ctx
-            for position, setter in self.other_setters:
+            held = bound.scalars
+            for k, (position, setter) in enumerate(self.scalar_setters):
+                value = args[position]
+                if value is held[k] or (value == held[k] and value != 0):  # a launch leaves its scalars as set
+                    continue  # (a zero is set again: -0.0 == 0.0; a nan too: nan != nan)
+                setter(ctx, value)
+                held[k] = value
+            for position, setter in self.external_setters:
                 setter(ctx, args[position])
         kernel.runtime.prog.launch_kernel(self.compiled, ctx)
 
