@@ -75,8 +75,20 @@ def heading_order(theta: ti.Ndarray, n: int, reference: float = 0.0) -> tuple[fl
     sum over agents of |wrap(theta - reference)| (e.g. the followers' distance to a leader's heading)."""
     partial = scratch((n_blocks(n), 3), theta.dtype)
     _angle_block_sums(theta, n, reference, partial)
+    return _heading_totals(partial, n)
+
+
+def _heading_totals(partial: ti.Ndarray, n: int) -> tuple[float, float, float]:
+    """:func:`heading_order` from its block sums (cos, sin, |gap|)."""
     c, s, gap = host_array(partial).astype(np.float64).sum(axis=0)
     return float(math.hypot(c, s) / n), float(math.atan2(s, c) % (2 * math.pi)), float(gap)
+
+
+def _on_one_thread(n: int) -> bool:
+    """Whether a swarm of n agents takes its small passes in one launch on one thread: at most
+    :data:`SMALL_GRAPH_MAX` agents, on the CPU (a GPU thread alone is slow)."""
+    engine = current_engine()
+    return n <= SMALL_GRAPH_MAX and engine is not None and engine.arch == "cpu"
 
 
 @ti.func
@@ -198,7 +210,6 @@ class NeighbourGraph:
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
         self.in_rounds = engine is not None and engine.arch == "vulkan"
-        self.small_on_one_thread = engine is not None and engine.arch == "cpu"  # a GPU thread alone is slow
         if self.in_rounds:
             self.parent = ti.ndarray(ti.i32, n)
             self.size = ti.ndarray(ti.i32, n)
@@ -264,7 +275,7 @@ class NeighbourGraph:
         """Clusters, largest-cluster fraction S and neighbour counts of the grid's current positions; `degree`:
         the agents' neighbour counts, in any order, where the model has them already."""
         n = self.grid.n
-        if degree is None and n <= SMALL_GRAPH_MAX and self.small_on_one_thread:
+        if degree is None and _on_one_thread(n):
             clusters, largest = self._small(radius, box)
             degree = self.degree
             mean_degree = mean(degree, n)
@@ -442,10 +453,8 @@ def pairwise_errors(pos: ti.Ndarray, theta: ti.Ndarray, n: int, box: float, boun
         return 0.0, 0.0
     if n <= EXACT_PAIRS_MAX:
         partial = scratch((n, 2), pos.dtype)
-        engine = current_engine()
-        small = n <= SMALL_GRAPH_MAX and engine is not None and engine.arch == "cpu"
-        (_small_pairs if small else _pairs_exact)(pos, theta, n, box, boundary, dim, partial)
-        return tuple(host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
+        (_small_pairs if _on_one_thread(n) else _pairs_exact)(pos, theta, n, box, boundary, dim, partial)
+        return _pair_means(partial, n)
     partial = scratch((SAMPLED_PAIRS // PAIR_BLOCK, 2), pos.dtype)
     _pairs_sampled(pos, theta, n, box, seed, step, boundary, dim, partial)
     return tuple(host_array(partial).astype(np.float64).sum(axis=0) / SAMPLED_PAIRS)
@@ -455,16 +464,17 @@ def orders_and_pairs(theta: ti.Ndarray, pos: ti.Ndarray, n: int, reference: floa
                      dim: int, seed: int, step: int) -> tuple[tuple[float, float, float], tuple[float, float]]:
     """:func:`heading_order` and :func:`pairwise_errors` of the same state; on the CPU a swarm of at most
     :data:`SMALL_GRAPH_MAX` agents takes both passes in one launch on one thread (:func:`_small_orders`)."""
-    engine = current_engine()
-    if n > SMALL_GRAPH_MAX or n < 2 or engine is None or engine.arch != "cpu":
+    if n < 2 or not _on_one_thread(n):
         return heading_order(theta, n, reference), pairwise_errors(pos, theta, n, box, boundary, dim, seed, step)
     headings = scratch((n_blocks(n), 3), theta.dtype)
     partial = scratch((n, 2), pos.dtype)
     _small_orders(theta, pos, n, reference, box, boundary, dim, headings, partial)
-    c, s, gap = host_array(headings).astype(np.float64).sum(axis=0)
-    dist, angle = host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2)
-    order = (float(math.hypot(c, s) / n), float(math.atan2(s, c) % (2 * math.pi)), float(gap))
-    return order, (float(dist), float(angle))
+    return _heading_totals(headings, n), _pair_means(partial, n)
+
+
+def _pair_means(partial: ti.Ndarray, n: int) -> tuple[float, float]:
+    """e_d and e_theta from each agent's exact pair sums."""
+    return tuple(host_array(partial).astype(np.float64).sum(axis=0) / (n * (n - 1) / 2))
 
 
 @ti.kernel
