@@ -6,7 +6,6 @@ SIGTERM behaves like Ctrl-C (KeyboardInterrupt) unless the command installs its 
 between steps); an interrupt that no command handles also ends with exit code 130 and no traceback.
 """
 
-import ctypes
 import signal
 import sys
 
@@ -43,6 +42,8 @@ def clear_interrupt_mark() -> None:
     process with SIGINT (exit -2) instead of the code passed to ``sys.exit``. The mark is a plain C int in 3.10 and
     3.11; in 3.12 it moved into the runtime state, where this does nothing.
     """
+    import ctypes  # here, not at the top: the entry point's signal handling starts before anything else loads
+
     try:
         ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt").value = 0
     except ValueError:  # symbol not exported (3.12)
