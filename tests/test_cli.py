@@ -155,6 +155,18 @@ def test_no_log_writes_no_file(tmp_path: Path) -> None:
     assert "wrote" not in result.stdout
 
 
+def test_sim_writes_the_kernel_cache(tmp_path: Path) -> None:
+    """A `tflock sim` run leaves Taichi's kernel cache on disk, so the next run loads its kernels instead of compiling
+    them (tens of seconds). The CLI freezes start-up's objects for the garbage collector; objects still frozen at exit
+    are never finalized, and Taichi writes the cache when its program is."""
+    cache = tmp_path / "kernel-cache"
+    result = subprocess.run([sys.executable, "-m", "tflock", "sim", "--model", "potential", "--set", "params.n=10",
+                             "--steps", "1", "--no-log"], cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True,
+                            text=True, timeout=TIMEOUT_S, env={**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": str(cache)})
+    assert result.returncode == 0, describe(result)
+    assert [path for path in cache.rglob("*") if path.is_file()]
+
+
 # ----------------------------------------------------------------------------------------------------------
 # inspect, models, config show, help
 

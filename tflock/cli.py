@@ -192,6 +192,7 @@ def sim(
         fail(str(e))
     finally:
         simulation.close()
+        gc.unfreeze()  # frozen objects are never finalized: Taichi would not write its kernel cache at exit
     t_end = time.perf_counter()
     _summary(simulation, t_start, t_ready, first_step_s, t_loop, t_end, interrupted)
     if interrupted:
