@@ -92,6 +92,35 @@ def test_bound_contexts_follow_their_ndarrays(cpu_engine):
     assert plans and all(len(p.bound) <= BOUND_CONTEXTS for p in plans)
 
 
+def test_repeated_calls_skip_the_signature_only_when_it_holds(cpu_engine, monkeypatch):
+    """A call that repeats the last call's plan (its ndarrays bound, the same argument types, template values and
+    NumPy arrays' dtypes and ranks) launches without working out its signature; any change takes the full path and
+    its own instance."""
+    import tflock.taichi_launch as launch
+
+    worked_out = []
+    signature = launch._signature
+    monkeypatch.setattr(launch, "_signature", lambda kernel, args: worked_out.append(1) or signature(kernel, args))
+    src = ti.ndarray(ti.f32, 4)
+    src.from_numpy(np.arange(4, dtype=np.float32))
+    # a signature's first call plans it, its second binds the ndarrays; then only a changed scalar value follows
+    new_signature, repeat = [True, True, False], [False, False, False]
+    calls = {(2.0, False, np.float32): new_signature, (3.0, False, np.float32): repeat,
+             (3.0, True, np.float32): new_signature, (3.0, True, np.float64): new_signature,
+             (np.float64(0.5), True, np.float64): new_signature, (4, True, np.float64): new_signature,
+             (5, True, np.float64): repeat}
+    for (factor, negate, real), expected in calls.items():
+        full_path = []
+        for _ in range(3):
+            dst = np.zeros(4, dtype=real)
+            before = len(worked_out)
+            _scaled(4, factor, negate, src, dst)
+            full_path.append(len(worked_out) > before)
+            assert np.array_equal(dst, (np.arange(4, dtype=np.float32) * np.float32(factor) * (-1 if negate else 1))
+                                  .astype(real))
+        assert full_path == expected, (factor, negate, real)
+
+
 @ti.kernel
 def _signed(x: float, y: ti.i32, out: ti.types.ndarray()):
     out[0] = ti.atan2(x, -1.0)  # pi for +0.0, -pi for -0.0

@@ -125,10 +125,16 @@ class _Plan:
         self.external_setters: list[tuple[int, Callable[[Any, Any], None]]] = []  # NumPy arrays: at every launch
         self.bound: dict[tuple[int, ...], _Bound] | None = {} if impl.current_cfg().arch in CPU_ARCHES else None
         self.valid = kernel.return_type is None and not getattr(kernel, "has_print", False)
+        self.types = tuple(map(type, args))  # what a call with bound ndarrays must match besides (see `matches`)
+        self.templates: list[tuple[int, Any]] = []  # the template arguments' positions and values
+        self.externals: list[tuple[int, Any, int]] = []  # the NumPy arrays' positions, dtypes and ranks
         slot = 0
         for position, (arg, argument) in enumerate(zip(args, kernel.arguments, strict=True)):
             if isinstance(argument.annotation, template):
+                self.templates.append((position, arg))
                 continue
+            if type(arg) is np.ndarray:
+                self.externals.append((position, arg.dtype, arg.ndim))
             setter = _setter(argument.annotation, type(arg), (slot,))
             if setter is None:
                 self.valid = False
@@ -143,8 +149,26 @@ class _Plan:
                 self.scalar_setters.append((position, setter))
             slot += 1
 
-    def launch(self, kernel: Kernel, args: tuple) -> None:
+    def matches(self, args: tuple) -> bool:
+        """Whether a call has this plan's signature, given that its Taichi ndarrays are those of one of the plan's
+        bound contexts (the same objects, so of the dtypes and ranks the plan admitted): the same argument types,
+        template values and NumPy arrays' dtypes and ranks (C-contiguous)."""
+        if tuple(map(type, args)) != self.types:
+            return False
+        for position, value in self.templates:
+            if args[position] != value:
+                return False
+        for position, dtype, ndim in self.externals:
+            array = args[position]
+            if array.dtype != dtype or array.ndim != ndim or not array.flags.c_contiguous:
+                return False
+        return True
+
+    def launch(self, kernel: Kernel, args: tuple, bound_only: bool = False) -> bool:
+        """Launch the call; with `bound_only`, only where its ndarrays have a bound context (False: not launched)."""
         if self.bound is None:
+            if bound_only:
+                return False
             ctx = self.t_kernel.make_launch_context()
             for position, setter in self.setters:
                 setter(ctx, args[position])
@@ -153,6 +177,8 @@ class _Plan:
             key = tuple(map(id, arrays))
             bound = self.bound.get(key)
             if bound is None or not bound.holds(arrays):  # new ndarrays, or a dead one's id taken by a new one
+                if bound_only:
+                    return False
                 if len(self.bound) >= BOUND_CONTEXTS:
                     del self.bound[next(iter(self.bound))]
                 bound = self.bound[key] = _Bound(self, arrays)
@@ -167,6 +193,7 @@ class _Plan:
             for position, setter in self.external_setters:
                 setter(ctx, args[position])
         kernel.runtime.prog.launch_kernel(self.compiled, ctx)
+        return True
 
 
 def _fast_call(original: Callable[..., Any]) -> Callable[..., Any]:
@@ -175,15 +202,25 @@ def _fast_call(original: Callable[..., Any]) -> Callable[..., Any]:
         if (kwargs or len(args) != len(self.arguments) or runtime.fwd_mode_manager or runtime.target_tape
                 or self.autodiff_mode != kernel_impl.AutodiffMode.NONE):
             return original(self, *args, **kwargs)
+        last = self.__dict__.get("_tflock_last")  # the plan of the last planned call: most calls repeat it
+        if (last is not None and last.matches(args) and self.compiled_kernels.get(last.key) is last.t_kernel
+                and last.launch(self, args, bound_only=True)):
+            return None
         signature = _signature(self, args)
         if signature is None:
             return original(self, *args)
         plans = self.__dict__.setdefault("_tflock_plans", {})
         plan = plans.get(signature)
         if plan is not None and self.compiled_kernels.get(plan.key) is plan.t_kernel:
-            return plan.launch(self, args) if plan.valid else original(self, *args)
+            if not plan.valid:
+                return original(self, *args)
+            self._tflock_last = plan
+            plan.launch(self, args)
+            return None
         result = original(self, *args)  # compiles the instance and checks every argument
         plans[signature] = _Plan(self, args)
+        if plans[signature].valid:
+            self._tflock_last = plans[signature]
         return result
 
     call.original = original  # type: ignore[attr-defined]
