@@ -796,7 +796,7 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     sim.run()
     recorder = sim.recorder
     sim.close()
-    traces = {n: (t.steps, t.values) for n, t in recorder._traces.items() if n.startswith("gnf_std_")}
+    traces = {n: recorder._rows.series(n) for n in recorder.metrics if n.startswith("gnf_std_")}
     assert len(traces) >= 2
     batches = _chunks(path)
     for name in traces:

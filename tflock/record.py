@@ -55,6 +55,7 @@ import rerun.blueprint as rrb
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
 from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
 from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips, time_columns
+from tflock.metric_log import MetricRows
 
 __all__ = [
     "BOUNDARIES",
@@ -196,29 +197,6 @@ WHOLE_RUN = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infi
 PLOTS_PER_TAB = 12
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
-#: points kept of each series to place its plot's legend (every other point is dropped when more come)
-TRACE_POINTS = 2048
-
-
-class _Trace:
-    """A thinned copy of one series, for :func:`legend_corner`: at most :data:`TRACE_POINTS` points, evenly spaced
-    over the run (every `stride`-th value)."""
-
-    def __init__(self) -> None:
-        self.stride, self._seen = 1, 0
-        self.steps: list[int] = []
-        self.values: list[float] = []
-
-    def add(self, step: int, value: float) -> None:
-        if self._seen % self.stride == 0:
-            self.steps.append(step)
-            self.values.append(value)
-            if len(self.steps) > TRACE_POINTS:
-                del self.steps[1::2], self.values[1::2]
-                self.stride *= 2
-        self._seen += 1
-
-
 def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
     """The corner of a plot (one of :data:`LEGEND_CORNERS`) where its legend covers the fewest of the series'
     points (steps, values). The legend of k series is taken to cover the outer 0.4 of the plot's width and
@@ -331,12 +309,8 @@ class Recorder:
         self._ids: np.ndarray | None = None  # agent ids of the rows last logged
         self._arrow_length: float | None = None  # the arrow length last logged
         self._trail: list[np.ndarray] = []  # the drawn agents' last positions, oldest first
-        self._traces: dict[str, _Trace] = {n: _Trace() for n in self.metrics}  # where each plot's legend goes
-        self._first_values: dict[str, float] = {}  # each metric's first value, while it has not changed
-        self._changed: set[str] = set()
-        self._metric_rows = 0
-        self._pending: dict[str, tuple[list[int], list[float]]] = {}  # metric rows not yet handed to Rerun
-        self._pending_rows, self._pending_since = 0, time.monotonic()
+        self._rows = MetricRows(list(self.metrics))  # rows not yet handed to Rerun, where the legends go
+        self._pending_since = time.monotonic()
         self._styles: float | None = None  # point radius of the styles logged for gathered frames
         self._shape_styles: dict[str, str] = {}  # the style logged for each of the gathered frames' other shapes
 
@@ -429,7 +403,7 @@ class Recorder:
         (:func:`legend_corner`)."""
         if not 1 < len(members) <= 6:
             return rrb.PlotLegend(visible=False)
-        corner = legend_corner([(self._traces[m].steps, self._traces[m].values) for m in members])
+        corner = legend_corner([self._rows.series(m) for m in members])
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
 
     def _about(self) -> str:
@@ -755,40 +729,30 @@ class Recorder:
             )
         if step < 0:
             raise ValueError(f"step must be >= 0, got {step}")
-        self._metric_rows += 1
-        for name, value in values.items():
-            value = float(value)
-            steps, pending = self._pending.setdefault(name, ([], []))
-            steps.append(int(step))
-            pending.append(value)
-            self._traces[name].add(step, value)
-            if name not in self._changed and step > 0:  # step 0 is the state before any step was made
-                first = self._first_values.setdefault(name, value)
-                if first != value and not (math.isnan(first) and math.isnan(value)):
-                    self._changed.add(name)
-        if self._csv_file is not None:
-            cells = [repr(float(values[n])) if n in values else "" for n in self.metrics]
+        row, present = self._rows.row(values)
+        self._rows.add(int(step), row, present)
+        if self._csv_file is not None:  # the csv module writes a float as its repr: every digit kept
+            cells = row.tolist()
+            if present is not None:
+                cells = [cell if here else "" for cell, here in zip(cells, present.tolist(), strict=True)]
             self._csv.writerow([int(step), *cells])
             self._csv_file.flush()
-        self._pending_rows += 1
-        if self._pending_rows >= METRIC_BATCH_ROWS or time.monotonic() - self._pending_since >= METRIC_BATCH_S:
+        if (self._rows.pending() >= METRIC_BATCH_ROWS
+                or time.monotonic() - self._pending_since >= METRIC_BATCH_S):
             self._send_metrics()
 
     def _send_metrics(self) -> None:
         """Hand the gathered metric rows to Rerun, one column of (step, time, value) per metric."""
-        for name, (steps, values) in self._pending.items():
-            if steps:
-                self.rec.send_columns(f"{METRICS}/{name}", indexes=time_columns(steps, self.world.dt),
-                                      columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
-                steps.clear()
-                values.clear()
-        self._pending_rows, self._pending_since = 0, time.monotonic()
+        for name, steps, values in self._rows.take_pending():
+            self.rec.send_columns(f"{METRICS}/{name}", indexes=time_columns(steps, self.world.dt),
+                                  columns=rr.Scalars.columns(scalars=values))
+        self._pending_since = time.monotonic()
 
     def constant_metrics(self) -> tuple[str, ...]:
         """The metrics logged with one value at every step after step 0 so far (none before two rows of any metric).
         Step 0, the initial state, does not count: a series of the step just made (``updated``, the fraction of
         agents that moved) is 0 there and constant after."""
-        return tuple(n for n in self.metrics if n in self._first_values and n not in self._changed)
+        return self._rows.constant()
 
     # ------------------------------------------------------------------ lifecycle
     def flush(self) -> None:
@@ -813,7 +777,7 @@ class Recorder:
             constant = self.constant_metrics()
             if len(constant) == len(self.metrics):  # nothing changed: no plot stands apart
                 constant = ()
-            if self.enabled and self._metric_rows > 1:
+            if self.enabled and self._rows.rows > 1:
                 self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
             self.rec.disconnect()
         finally:
