@@ -1,6 +1,9 @@
 """The engine's choice of lanes for the CPU kernels, from the CPU's identity or TFLOCK_LANES (the trajectories do
 not depend on it: test_determinism runs both)."""
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -55,3 +58,17 @@ def test_init_engine_refuses_a_bad_lanes_value_only(monkeypatch: pytest.MonkeyPa
     monkeypatch.setenv("TFLOCK_LANES", "12")
     with pytest.raises(EngineError, match="TFLOCK_LANES: must be 8 or 16"):
         init_engine(ARCH, 0, PRECISION)
+
+
+@pytest.mark.parametrize("setting,expected", [(None, False), ("1", True), ("0", False)])
+def test_cpu_compiles_without_taichis_cfg_passes_unless_told(setting: str | None, expected: bool) -> None:
+    """On the CPU tflock turns Taichi's control-flow-graph passes off (LLVM repeats them; compiles take several times
+    less); TI_CFG_OPTIMIZATION, where set, decides."""
+    env = {k: v for k, v in os.environ.items() if k != "TI_CFG_OPTIMIZATION"}
+    if setting is not None:
+        env["TI_CFG_OPTIMIZATION"] = setting
+    script = ("from tflock.engine import init_engine; init_engine('cpu', 1, 'f32'); import taichi as ti; "
+              "print(ti.lang.impl.current_cfg().cfg_optimization)")
+    result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == str(expected)

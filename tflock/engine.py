@@ -35,6 +35,11 @@ ARCHES = ("cpu", "cuda", "vulkan", "auto")
 KERNEL_CACHE_BYTES = 1 << 30
 PRECISIONS = ("f32", "f64")
 LANE_COUNTS = ("8", "16")
+#: Taichi's front-end passes over the control-flow graph (store-to-load forwarding, dead-store elimination) take
+#: most of the time of compiling tflock's lane-wise kernels; on the CPU, LLVM's own passes do that work again, so
+#: without them the kernels compile several times faster and run as fast (docs/performance.md, "Start-up"). Off on
+#: the CPU unless TI_CFG_OPTIMIZATION is set; GPU arches keep Taichi's default (not measured there).
+CPU_CFG_OPTIMIZATION = False
 
 
 class EngineError(RuntimeError):
@@ -147,6 +152,8 @@ def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> 
     quiet = ti.WARN if arch == "cpu" else ti.ERROR
     common = dict(default_fp=fp, default_ip=ti.i32, cpu_max_num_threads=n_threads, log_level=quiet,
                   offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
+    if arch == "cpu" and not os.environ.get("TI_CFG_OPTIMIZATION"):
+        common["cfg_optimization"] = CPU_CFG_OPTIMIZATION
     arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu] if precision == "f32" else [ti.cuda, ti.cpu]}
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
         ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
