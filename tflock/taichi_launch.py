@@ -17,7 +17,9 @@ On the CPU a plan also keeps launch contexts *bound* to the Taichi ndarrays it w
 once, as the address, size and shape of its host memory (what Taichi's CPU launcher makes of an ndarray argument at
 every launch), and a later call with the same ndarrays sets only its other arguments, its scalars only where their
 values changed since that context's last launch. A model's step passes the same tens of ndarrays at every step, and
-setting each argument through Taichi's bindings costs about a microsecond or more.
+setting each argument through Taichi's bindings costs about a microsecond or more. A call that repeats the kernel's
+last plan (the same argument types, template values and NumPy arrays' dtypes and ranks, its Taichi ndarrays those of
+one of the plan's bound contexts) launches that context without working out its signature at all.
 
 A plan is made only for plain calls: positional arguments, template values that are Python scalars or strings,
 ndarray arguments that are Taichi scalar ndarrays without gradients or C-contiguous NumPy arrays of scalars (set as
