@@ -167,6 +167,20 @@ def test_sim_writes_the_kernel_cache(tmp_path: Path) -> None:
     assert [path for path in cache.rglob("*") if path.is_file()]
 
 
+def test_sim_with_an_unwritable_kernel_cache_warns_and_exits_cleanly(tmp_path: Path) -> None:
+    """Taichi 1.7 crashes at exit (SIGSEGV) when its kernel cache folder cannot be made, even with the cache off; the
+    engine turns the cache off, points Taichi elsewhere and says so in one line."""
+    (tmp_path / "a-file").write_text("not a folder")
+    folder = tmp_path / "a-file" / "cache"
+    result = subprocess.run([sys.executable, "-m", "tflock", "sim", "--model", "potential", "--set", "params.n=10",
+                             "--steps", "1", "--no-log"], cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True,
+                            text=True, timeout=TIMEOUT_S, env={**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": str(folder)})
+    assert result.returncode == 0, describe(result)
+    warned = [line for line in result.stderr.splitlines() if "kernel cache" in line]
+    assert len(warned) == 1 and str(folder) in warned[0] and "compiled again in every run" in warned[0]
+    assert "Traceback" not in result.stderr
+
+
 # ----------------------------------------------------------------------------------------------------------
 # inspect, models, config show, help
 

@@ -11,6 +11,8 @@ import contextlib
 import functools
 import io
 import os
+import tempfile
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +21,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # before the import: n
 
 import taichi as ti  # noqa: E402
 
+from tflock.advice import TflockWarning  # noqa: E402
 from tflock.taichi_frontend import fast_class_check, memoize_position_messages  # noqa: E402
 from tflock.taichi_host import copy_on_host  # noqa: E402
 from tflock.taichi_launch import fast_launches  # noqa: E402
@@ -40,6 +43,9 @@ LANE_COUNTS = ("8", "16")
 #: without them the kernels compile several times faster and run as fast (docs/performance.md, "Start-up"). Off on
 #: the CPU unless TI_CFG_OPTIMIZATION is set; GPU arches keep Taichi's default (not measured there).
 CPU_CFG_OPTIMIZATION = False
+#: where Taichi is pointed when its kernel cache folder cannot be written (see :func:`kernel_cache_folder`): it stays
+#: empty, the cache being off
+NO_CACHE_FOLDER = os.path.join(tempfile.gettempdir(), "tflock-no-kernel-cache")
 
 
 class EngineError(RuntimeError):
@@ -121,6 +127,19 @@ def _arch_name(arch: object) -> str:
     return "cpu" if name in ("x64", "arm64") else name
 
 
+def kernel_cache_folder() -> tuple[str, bool]:
+    """Taichi's kernel cache folder (``TI_OFFLINE_CACHE_FILE_PATH``, else its default under ``~/.cache/taichi``),
+    made where missing, and whether it can be written. Taichi 1.7 makes that folder when its program is finalized,
+    at exit, even with the cache off, and crashes there (SIGSEGV) when it cannot: :func:`init_engine` then turns the
+    cache off and points Taichi at :data:`NO_CACHE_FOLDER`."""
+    path = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or ti._lib.core.CompileConfig().offline_cache_file_path
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return path, False
+    return path, os.access(path, os.W_OK)
+
+
 def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> EngineInfo:
     """Initialise Taichi once; later calls must ask for the same settings (or are no-ops when they do).
 
@@ -154,9 +173,20 @@ def init_engine(arch: str = "cpu", threads: int = 0, precision: str = "f32") -> 
                   offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
     if arch == "cpu" and not os.environ.get("TI_CFG_OPTIMIZATION"):
         common["cfg_optimization"] = CPU_CFG_OPTIMIZATION
+    folder, writable = kernel_cache_folder()
+    if not writable:
+        common.update(offline_cache=False, offline_cache_file_path=NO_CACHE_FOLDER)
+        warnings.warn(f"Taichi's kernel cache folder {folder} cannot be written: kernels are compiled again in "
+                      f"every run (set TI_OFFLINE_CACHE_FILE_PATH to a folder that can be written)", TflockWarning,
+                      stacklevel=2)
     arches = {"cpu": ti.cpu, "auto": [ti.cuda, ti.vulkan, ti.cpu] if precision == "f32" else [ti.cuda, ti.cpu]}
-    with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
-        ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
+    named = os.environ.pop("TI_OFFLINE_CACHE_FILE_PATH", None) if not writable else None  # else Taichi warns
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "[Taichi] Starting on arch=..."
+            ti.init(arch=arches.get(arch) or getattr(ti, arch), **common)
+    finally:
+        if named is not None:
+            os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = named
     if arch not in arches:
         used = _arch_name(ti.lang.impl.current_cfg().arch)
         if used != arch:
