@@ -69,7 +69,7 @@ def test_complete_rows_in_order_are_read_as_one_vector() -> None:
     row, present = rows.row({"speed": 1.0, "order": 0.5})
     assert present.tolist() == [True, True, False, False]
     np.testing.assert_array_equal(row, [0.5, 1.0, math.nan, math.nan])
-    with pytest.raises(KeyError):
+    with pytest.raises(ValueError, match="unknown metric.s. nope; declared: order, speed, clusters, lambda2"):
         rows.row({"nope": 1.0})
 
 

@@ -30,16 +30,19 @@ class MetricRows:
         self._stride, self._seen = 1, 0  # the trace: every stride-th row
         self._trace_steps: list[int] = []
         self._trace_values: list[np.ndarray] = []
-        self._trace_present: list[np.ndarray] = []
+        self._trace_present: list[np.ndarray | None] = []
         self._first = np.full(width, np.nan)  # each metric's first value after step 0
         self._has_first = np.zeros(width, dtype=bool)
         self._changed = np.zeros(width, dtype=bool)
 
     def row(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray | None]:
         """`values` as a vector in the order of `names` (NaN where left out) and which are present (None: all).
-        Names must be among `names`."""
+        A name not among `names` raises ValueError."""
         if len(values) == len(self.names) and tuple(values) == self.names:  # a model's row: every metric, in order
             return np.fromiter(values.values(), np.float64, len(self.names)), None
+        unknown = set(values) - self.index.keys()
+        if unknown:
+            raise ValueError(f"unknown metric(s) {', '.join(sorted(unknown))}; declared: {', '.join(self.names)}")
         row = np.full(len(self.names), np.nan)
         present = np.zeros(len(self.names), dtype=bool)
         for name, value in values.items():
@@ -54,17 +57,17 @@ class MetricRows:
         self._steps.append(step)
         self._values.append(row)
         self._present.append(present)
-        every = np.ones(len(row), dtype=bool) if present is None else present
         if self._seen % self._stride == 0:
             self._trace_steps.append(step)
             self._trace_values.append(row)
-            self._trace_present.append(every)
+            self._trace_present.append(present)
             if len(self._trace_steps) > TRACE_POINTS:
                 for kept in (self._trace_steps, self._trace_values, self._trace_present):
                     del kept[1::2]
                 self._stride *= 2
         self._seen += 1
         if step > 0:  # step 0 is the state before any step was made
+            every = True if present is None else present
             new = every & ~self._has_first
             self._first[new] = row[new]
             self._has_first |= new
@@ -99,7 +102,7 @@ class MetricRows:
         if not self._trace_steps:
             return np.zeros(0), np.zeros(0)
         j = self.index[name]
-        present = np.array([p[j] for p in self._trace_present], dtype=bool)
+        present = np.array([p is None or p[j] for p in self._trace_present], dtype=bool)
         steps = np.asarray(self._trace_steps, dtype=np.float64)[present]
         values = np.array([v[j] for v in self._trace_values], dtype=np.float64)[present]
         return steps, values

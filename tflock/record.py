@@ -722,14 +722,9 @@ class Recorder:
 
         Metrics missing from ``values`` are skipped (an empty CSV cell); unknown names raise ValueError.
         """
-        unknown = set(values) - set(self.metrics)
-        if unknown:
-            raise ValueError(
-                f"unknown metric(s) {', '.join(sorted(unknown))}; declared: {', '.join(self.metrics)}"
-            )
+        row, present = self._rows.row(values)  # checks the names
         if step < 0:
             raise ValueError(f"step must be >= 0, got {step}")
-        row, present = self._rows.row(values)
         self._rows.add(int(step), row, present)
         if self._csv_file is not None:  # the csv module writes a float as its repr: every digit kept
             cells = row.tolist()
