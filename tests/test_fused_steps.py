@@ -7,6 +7,7 @@ from conftest import PRECISION, assert_same_run
 
 from tflock.config import load_config
 from tflock.models.potential import Potential
+from tflock.space import PERIODIC, WINDOW
 
 
 @pytest.mark.parametrize("graph", ["random", "complete"])
@@ -207,3 +208,43 @@ def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params
             assert np.array_equal(a[key], b[key]), (steps, key)
     assert any(stopped) == (cfg.params.n == 10), stopped
     assert_same_announced_frame(monkeypatch, (potential, "FUSED_MAX_N"), single, fused, cfg.params.n)
+
+
+FORMATION_SERIAL = [
+    ("formation-s1-1.toml", {}),  # the paper's setup: the swarm outgrows the window (steps 42-...) and fits again
+    ("formation-failure-noise.toml", {"params.fail_prob": 0.3, "params.noise_deg": 0.9}),  # the random draws
+]
+
+
+@pytest.mark.parametrize("config,overrides", FORMATION_SERIAL)
+def test_formation_serial_steps_match_single_launches(engine, monkeypatch, config, overrides):
+    """The formation step run k steps a launch on one thread (_serial_steps) against its launches of one grid build
+    and one step each (SERIAL_MAX_N = 0): the same state, cell order, rules and metrics bit for bit, with metrics
+    between runs of 1-30 steps, through steps where no window holds the swarm (the torus's tiling then)."""
+    import tflock.models.formation as formation
+
+    if engine.arch != "cpu":
+        pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
+    cfg = load_config(f"configs/papers/{config}", overrides={**overrides, "engine.precision": PRECISION})
+    single = formation.Formation(cfg.params, cfg.seed, engine)
+    serial = formation.Formation(cfg.params, cfg.seed, engine)
+    layouts = set()
+    for steps in (1, 7, 2, 30, 5, 30, 1, 30):
+        with monkeypatch.context() as m:
+            m.setattr(formation, "SERIAL_MAX_N", 0)
+            for _ in range(steps):
+                single.advance(1)
+                layouts.add(single.grid.geometry.boundary)
+            a = single.metrics()
+        serial.advance(steps)
+        assert serial.step_index == single.step_index
+        b = serial.metrics()
+        assert a == b, steps
+        for key, value in single.state().items():
+            assert np.array_equal(value, serial.state()[key]), (steps, key)
+        assert np.array_equal(single.rules(), serial.rules()), steps
+        for name in ("ids", "pos", "f", "i"):  # the current buffers, in the same cell order
+            assert np.array_equal(getattr(single, name)[single.cur].to_numpy(),
+                                  getattr(serial, name)[serial.cur].to_numpy()), (steps, name)
+        assert np.array_equal(single.trig.to_numpy(), serial.trig.to_numpy()), steps
+    assert layouts == {WINDOW, PERIODIC}, layouts

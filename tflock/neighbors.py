@@ -411,16 +411,20 @@ def _cell_bounds(n: ti.i32, dim: ti.template(), box: float, cell_size: float, la
 
 
 @ti.func
-def bounded_layout(n, dim: ti.template(), cell_size, max_side, pos: ti.template(), bounds: ti.template()):
-    """The bounded open-space layout of n agents' positions, found on one thread inside a model's kernel as
-    :meth:`CellGrid._layout` finds it: the bounding box of their cells floor(p / R) into `bounds` (bounds[0], the
-    lowest cell, is the grid's origin for :func:`build_grid`) and its cells a side, or 0 where the box is more than
-    `max_side` cells a side (the layout then falls back to the hash, which such a kernel does not build)."""
+def bounded_layout(n, dim: ti.template(), box, cell_size, max_side, layout: ti.template(), pos: ti.template(),
+                   bounds: ti.template(), anchor: ti.template()):
+    """A bounded grid's layout of n agents' positions, found on one thread inside a model's kernel as
+    :meth:`CellGrid._layout` finds it: the bounding box of their cells into `bounds` (bounds[0], the lowest cell, is
+    the grid's origin for :func:`build_grid`) and its cells a side, or 0 where the box is more than `max_side` cells
+    a side (the layout then falls back to the hash or the tiling, which such a kernel does not build). BOUNDED (open
+    space): cells floor(p / R). WINDOW (a periodic box): the cells of the minimum-image positions relative to the
+    first agent, which becomes the `anchor`; `max_side` is then :meth:`CellGrid.max_window_side`, and a window
+    anchored at a position that is not finite never fits."""
     first = load_vec(pos, 0, dim)
-    lo = _window_cell(first, first, 0.0, cell_size, BOUNDED)
+    lo = _window_cell(first, first, box, cell_size, layout)
     hi = lo
     for e in range(1, n):
-        c = _window_cell(load_vec(pos, e, dim), first, 0.0, cell_size, BOUNDED)
+        c = _window_cell(load_vec(pos, e, dim), first, box, cell_size, layout)
         lo = ti.min(lo, c)
         hi = ti.max(hi, c)
     side = ti.i64(0)
@@ -429,6 +433,10 @@ def bounded_layout(n, dim: ti.template(), cell_size, max_side, pos: ti.template(
         bounds[1, d] = hi[d]
         side = ti.max(side, ti.cast(hi[d], ti.i64) - ti.cast(lo[d], ti.i64) + 1)
     fits = (side >= 1) & (side <= max_side)
+    if ti.static(layout == WINDOW):
+        for d in ti.static(range(dim)):
+            anchor[d, 0] = first[d]
+            fits &= not (ti.math.isnan(first[d]) or ti.math.isinf(first[d]))
     return ti.select(fits, ti.cast(side, ti.i32), 0)
 
 
@@ -613,7 +621,7 @@ class CellGrid:
         self.radius = radius
         self.box = box
         self.geometry = grid_geometry(n, dim, boundary, box, radius, replicas, at_most)
-        self._fallback = self.geometry  # a bounded grid's hash or tiling
+        self.fallback = self.geometry  # a bounded grid's hash or tiling
         self.boundary = self.geometry.boundary  # the space's boundary code (``geometry`` holds the layout's)
         g = self.geometry
         self.bounded = bounded and g.boundary in (OPEN, PERIODIC) and replicas == 1
@@ -677,7 +685,7 @@ class CellGrid:
     @functools.cached_property
     def max_side(self) -> int:
         """The most cells a side a bounded layout may have: its buckets must fit the arrays."""
-        dim = self._fallback.dim
+        dim = self.fallback.dim
         side = int(round(self._capacity ** (1.0 / dim)))
         while side**dim > self._capacity:
             side -= 1
@@ -685,16 +693,26 @@ class CellGrid:
             side += 1
         return side
 
-    def count_bounded_builds(self, builds: int, per_side: int) -> None:
-        """Count `builds` builds of a bounded open-space grid that a model's kernel made itself
-        (:func:`bounded_layout`, :func:`build_grid`); `per_side` > 0: the last of them is of that many cells a side
-        and its runs were cut (:func:`cut_runs`) into :meth:`run_buffer`, else the grid is not the state's."""
+    def count_bounded_builds(self, builds: int, per_side: int, fallback: bool = False) -> None:
+        """Count `builds` builds of a bounded grid (open space) or window grid (periodic box) that a model's kernel
+        made itself (:func:`bounded_layout`, :func:`build_grid`); `per_side` > 0: the last of them is of that many
+        cells a side and its runs were cut (:func:`cut_runs`) into :meth:`run_buffer`; else with `fallback` the
+        last one took the fallback layout (its runs not cut), else the grid holds none of them."""
         self.builds += builds
+        if fallback and not per_side:
+            self.geometry = self.fallback
         if per_side:
-            h = self._fallback
-            self.geometry = GridGeometry(h.dim, BOUNDED, self.radius, per_side, per_side**h.dim, per_side**h.dim,
+            h = self.fallback
+            layout = WINDOW if h.boundary == PERIODIC else BOUNDED
+            self.geometry = GridGeometry(h.dim, layout, self.radius, per_side, per_side**h.dim, per_side**h.dim,
                                          self.n)
             self._runs_build = self.builds
+
+    @functools.cached_property
+    def max_window_side(self) -> int:
+        """The most cells a side a window layout (periodic box) may have: within :attr:`max_side`, and leaving at
+        least R, and a margin of one cell for rounding, of the torus outside it."""
+        return min(self.max_side, int(self.box / self.radius) - 2)
 
     def _layout(self, pos: ti.Ndarray) -> GridGeometry:
         """A bounded grid's layout for these positions: side-R cells over the cube on their bounding box (open
@@ -702,16 +720,17 @@ class CellGrid:
         straggler far out; positions beyond the range of integer cell coordinates, or not finite, give nonsense
         bounds that always are) or, in a periodic box, when the window leaves less than R (and a margin of one
         cell for rounding) of the torus outside it."""
-        h = self._fallback
+        h = self.fallback
         layout = WINDOW if h.boundary == PERIODIC else BOUNDED
         _cell_bounds(self.n, h.dim, self.box, self.radius, layout, pos, self._bound_blocks, self.bounds, self.anchor)
         lo, hi = self.bounds.to_numpy().astype(np.int64)
         per_side = int(np.max(hi - lo)) + 1
-        if per_side < 1 or per_side > self.max_side:  # the rule bounded_layout applies in a model's kernel
+        widest = self.max_window_side if layout == WINDOW else self.max_side
+        if per_side < 1 or per_side > widest:  # the rule bounded_layout applies in a model's kernel
             return h
-        if layout == WINDOW:  # a finite anchor too (were it not, every agent's cell would be the same nonsense)
-            if (per_side + 2) * self.radius > self.box or not np.isfinite(self.anchor.to_numpy()).all():
-                return h
+        # a window needs a finite anchor too (were it not, every agent's cell would be the same nonsense)
+        if layout == WINDOW and not np.isfinite(self.anchor.to_numpy()).all():
+            return h
         return GridGeometry(h.dim, layout, self.radius, per_side, per_side**h.dim, per_side**h.dim, self.n)
 
     def slots(self) -> ti.Ndarray:

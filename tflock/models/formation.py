@@ -71,7 +71,10 @@ from tflock.models.formation_params import (
 from tflock.neighbors import (
     LANES,
     CellGrid,
+    bounded_layout,
     bucket_of_cell,
+    build_grid,
+    cut_runs,
     lanes,
     load_cell,
     load_vec,
@@ -111,6 +114,9 @@ COS_TURN_MARGIN = math.cos(TURN_MARGIN)
 #: what a pass of :func:`_scan` computes: the nearest neighbour, the zone sums, or both; FAR: skipping candidates
 #: beyond reach of every lane first (see :func:`sparse_cells`)
 NEAREST, ZONES, FAR = 1, 2, 4
+#: on the CPU, swarms of at most this many agents run the steps between two observations on one thread, in
+#: launches of at most SERIAL_RUN steps (:func:`_serial_steps`): there a launch costs more than its arithmetic
+SERIAL_MAX_N, SERIAL_RUN = 1024, 1024
 
 
 def sparse_cells(cell_size: float, params: FormationParams) -> bool:
@@ -315,21 +321,18 @@ def _advance(s, t, seed, c: ti.template(), out_set, in_set, va, va_next, a_cos, 
     return ti.select(df_holds(q, new, speed, va_next, c), 0, 1)
 
 
-@ti.kernel
-def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
-          zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
-          nc: ti.i32, n_buckets: ti.i32, cell_size: float, layout: ti.template(), lane_wise: ti.template(),
-          sparse: ti.template(),
-          start: ti.types.ndarray(), run_end: ti.types.ndarray(), bounds: ti.types.ndarray(),
-          anchor: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-          pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
-          trig: ti.types.ndarray(), f_old: ti.types.ndarray(), i_old: ti.types.ndarray(), pos_new: ti.types.ndarray(),
-          f_new: ti.types.ndarray(), i_new: ti.types.ndarray(), ids_new: ti.types.ndarray(),
-          rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
-    """One synchronous step (see the module). ``lane_wise`` (the CPU): the agents of each run of cells
-    (:meth:`CellGrid.runs`) are scanned ``LANES`` at a time against the run's 3 x (width + 2) cells; otherwise
-    each agent scans its own stencil. Both meet the same candidates in the same order (a run's wider window only
-    adds candidates beyond R), so they give the same step."""
+@ti.func
+def _step_all(t, seed, n, c: ti.template(), out_set, in_set, zones: ti.template(), va_x, va_y, next_x, next_y, nc,
+              n_buckets, cell_size, layout: ti.template(), lane_wise: ti.template(), sparse: ti.template(),
+              start: ti.template(), run_end: ti.template(), bounds: ti.template(), anchor: ti.template(),
+              order: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), coords_sorted: ti.template(),
+              payload: ti.template(), trig: ti.template(), f_old: ti.template(), i_old: ti.template(),
+              pos_new: ti.template(), f_new: ti.template(), i_new: ti.template(), ids_new: ti.template(),
+              rule: ti.template(), bad: ti.template(), tau: ti.template()):
+    """One synchronous step (see the module) from the grid of the current state, as :func:`_step` launches it.
+    ``lane_wise`` (the CPU): the agents of each run of cells (:meth:`CellGrid.runs`) are scanned ``LANES`` at a
+    time against the run's 3 x (width + 2) cells; otherwise each agent scans its own stencil. Both meet the same
+    candidates in the same order (a run's wider window only adds candidates beyond R), so they give the same step."""
     for s in range(n):  # headings in cell order: contiguous reads in the neighbour loop
         e = order[s]
         payload[0, s] = trig[0, e]
@@ -423,6 +426,79 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti
                 ti.atomic_add(bad[0], 1)
     if bad[0] == 0 and tau[0] < 0:
         tau[0] = t + 1
+
+
+@ti.kernel
+def _step(t: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32, in_set: ti.i32,
+          zones: ti.template(), va_x: float, va_y: float, next_x: float, next_y: float,
+          nc: ti.i32, n_buckets: ti.i32, cell_size: float, layout: ti.template(), lane_wise: ti.template(),
+          sparse: ti.template(),
+          start: ti.types.ndarray(), run_end: ti.types.ndarray(), bounds: ti.types.ndarray(),
+          anchor: ti.types.ndarray(), order: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+          pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
+          trig: ti.types.ndarray(), f_old: ti.types.ndarray(), i_old: ti.types.ndarray(), pos_new: ti.types.ndarray(),
+          f_new: ti.types.ndarray(), i_new: ti.types.ndarray(), ids_new: ti.types.ndarray(),
+          rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray()):
+    _step_all(t, seed, n, c, out_set, in_set, zones, va_x, va_y, next_x, next_y, nc, n_buckets, cell_size, layout,
+              lane_wise, sparse, start, run_end, bounds, anchor, order, id_sorted, pos_sorted, coords_sorted, payload,
+              trig, f_old, i_old, pos_new, f_new, i_new, ids_new, rule, bad, tau)
+
+
+@ti.kernel
+def _serial_steps(steps: ti.i32, t0: ti.i32, seed: ti.u32, n: ti.i32, c: ti.types.ndarray(), out_set: ti.i32,
+                  in_set: ti.i32, zones: ti.template(), va: ti.types.ndarray(), box: float, radius: float,
+                  max_side: ti.i32, tiling_nc: ti.i32, tiling_cell: float,
+                  coords: ti.types.ndarray(), bucket: ti.types.ndarray(), counts: ti.types.ndarray(),
+                  start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
+                  pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
+                  mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
+                  anchor: ti.types.ndarray(), by_rank: ti.template(), run_end: ti.types.ndarray(),
+                  payload: ti.types.ndarray(), trig: ti.types.ndarray(), pos: ti.types.ndarray(),
+                  f: ti.types.ndarray(), i: ti.types.ndarray(), ids: ti.types.ndarray(), pos_new: ti.types.ndarray(),
+                  f_new: ti.types.ndarray(), i_new: ti.types.ndarray(), ids_new: ti.types.ndarray(),
+                  rule: ti.types.ndarray(), bad: ti.types.ndarray(), tau: ti.types.ndarray(),
+                  last: ti.types.ndarray()):
+    """`steps` steps from step `t0` in one launch, on one thread (a small swarm: a launch costs more than its
+    arithmetic), each the grid's layout and build and :func:`_step_all`, as the host's launches make them
+    (:meth:`Formation._one_step`), so every step computes what they compute, bit for bit: the window's layout where
+    one holds the swarm (:func:`tflock.neighbors.bounded_layout`, `max_side` cells a side at most) and the lane-wise
+    step; else the torus's tiling (`tiling_nc` cells of side `tiling_cell` a side) and the per-agent step (the two
+    give the same step; the lane-wise one's second copy would lengthen the kernel's load at every process start).
+    The new state is copied back into (pos, f, i, ids), the current buffers. `va` holds the VA's positions at steps
+    t0 .. t0 + steps (computed in float64 on the host, as the host's steps take them). ``last[0]``: the last step's
+    window cells a side, 0 where it took the tiling."""
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        for made in range(steps):
+            t = t0 + made
+            side = bounded_layout(n, 2, box, radius, max_side, WINDOW, pos, bounds, anchor)
+            last[0] = side
+            if side > 0:
+                cells = side * side
+                build_grid(pos, ids, n, n, box, radius, side, cells, cells, WINDOW, 2, coords, bucket, counts, start,
+                           order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed, block_start, bounds, anchor,
+                           by_rank)
+                cut_runs(side, side, start, run_end)
+                _step_all(t, seed, n, c, out_set, in_set, zones, va[made, 0], va[made, 1], va[made + 1, 0],
+                          va[made + 1, 1], side, cells, radius, WINDOW, True, False, start, run_end, bounds, anchor,
+                          order, id_sorted, pos_sorted, coords_sorted, payload, trig, f, i, pos_new, f_new, i_new,
+                          ids_new, rule, bad, tau)
+            else:
+                cells = tiling_nc * tiling_nc
+                build_grid(pos, ids, n, n, box, tiling_cell, tiling_nc, cells, cells, PERIODIC, 2, coords, bucket,
+                           counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed, block_start,
+                           bounds, anchor, by_rank)
+                _step_all(t, seed, n, c, out_set, in_set, zones, va[made, 0], va[made, 1], va[made + 1, 0],
+                          va[made + 1, 1], tiling_nc, cells, tiling_cell, PERIODIC, False, False, start,
+                          run_end, bounds, anchor, order, id_sorted, pos_sorted, coords_sorted, payload, trig, f, i,
+                          pos_new, f_new, i_new, ids_new, rule, bad, tau)
+            for s in range(n):
+                for a in ti.static(range(2)):
+                    pos[a, s] = pos_new[a, s]
+                    i[a, s] = i_new[a, s]
+                for a in ti.static(range(4)):
+                    f[a, s] = f_new[a, s]
+                ids[s] = ids_new[s]
 
 
 @ti.kernel
@@ -613,22 +689,54 @@ class Formation(Model):
         self.grid.build(self.pos[self.cur], self.ids[self.cur])
 
     def advance(self, steps: int) -> None:
+        """Run `steps` steps: on the CPU with at most :data:`SERIAL_MAX_N` agents in launches of up to
+        :data:`SERIAL_RUN` steps (:func:`_serial_steps`), else one step (a grid build and a step launch) at a
+        time."""
+        if self.lane_wise and self.params.n <= SERIAL_MAX_N:
+            while steps > 0:
+                run = min(steps, SERIAL_RUN)
+                self._serial_steps(run)
+                steps -= run
+        else:
+            for _ in range(steps):
+                self._one_step()
+
+    def _serial_steps(self, steps: int) -> None:
+        """`steps` steps in one launch of :func:`_serial_steps`."""
+        p, grid, t0 = self.params, self.grid, self.step_index
+        va = scratch((SERIAL_RUN + 1, 2), self.pos[0].dtype)
+        positions = np.zeros((SERIAL_RUN + 1, 2))
+        positions[: steps + 1] = ref.va_position(np.arange(t0, t0 + steps + 1)[:, None], p)
+        va.from_numpy(positions.astype(self.engine.real))
+        tiling, last = grid.fallback, scratch((1,), ti.i32)
+        k = self.cur
+        _serial_steps(steps, t0, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones, va, p.world,
+                      grid.radius, grid.max_window_side, tiling.cells_per_side, tiling.cell_size, grid.coords,
+                      grid.bucket, grid.counts, grid.start, grid.order, grid.slot_of, grid.pos_sorted,
+                      grid.coords_sorted, grid.id_sorted, grid.mixed, grid.block_start, grid.bounds, grid.anchor,
+                      grid.rank_sort, grid.run_buffer(), self.payload, self.trig, self.pos[k], self.f[k], self.i[k],
+                      self.ids[k], self.pos[1 - k], self.f[1 - k], self.i[1 - k], self.ids[1 - k], self.rule,
+                      self.bad, self.tau, last)
+        grid.count_bounded_builds(steps, int(host_array(last)[0]), fallback=True)
+        self.step_index = t0 + steps
+
+    def _one_step(self) -> None:
+        """One step: the grid of the current state built on the host's layout, then :func:`_step`."""
         p = self.params
-        for _ in range(steps):
-            t = self.step_index
-            a, b = self.cur, 1 - self.cur
-            self.grid.build(self.pos[a], self.ids[a])
-            g = self.grid.geometry  # a bounded grid's layout is the build's
-            va, va_next = self.va_position(t), self.va_position(t + 1)
-            _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
-                  va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, g.cell_size, g.boundary,
-                  self.lane_wise, self.lane_wise and sparse_cells(g.cell_size, p), self.grid.start,
-                  self.grid.runs() if self.lane_wise else self.grid.start,
-                  self.grid.bounds, self.grid.anchor, self.grid.order,
-                  self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.trig,
-                  self.f[a], self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
-            self.cur = b
-            self.step_index += 1
+        t = self.step_index
+        a, b = self.cur, 1 - self.cur
+        self.grid.build(self.pos[a], self.ids[a])
+        g = self.grid.geometry  # a bounded grid's layout is the build's
+        va, va_next = self.va_position(t), self.va_position(t + 1)
+        _step(t, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones,
+              va[0], va[1], va_next[0], va_next[1], g.cells_per_side, g.n_buckets, g.cell_size, g.boundary,
+              self.lane_wise, self.lane_wise and sparse_cells(g.cell_size, p), self.grid.start,
+              self.grid.runs() if self.lane_wise else self.grid.start,
+              self.grid.bounds, self.grid.anchor, self.grid.order,
+              self.grid.id_sorted, self.grid.pos_sorted, self.grid.coords_sorted, self.payload, self.trig,
+              self.f[a], self.i[a], self.pos[b], self.f[b], self.i[b], self.ids[b], self.rule, self.bad, self.tau)
+        self.cur = b
+        self.step_index += 1
 
     def metrics(self) -> dict[str, float]:
         p = self.params

@@ -625,7 +625,7 @@ def _lane_steps(steps: ti.i32, ready: ti.i32, side0: ti.i32, max_side: ti.i32, d
         stop = 0
         while stop == 0:
             if built == 0:
-                side = bounded_layout(n, dim, cell_size, max_side, pos, bounds)
+                side = bounded_layout(n, dim, box, cell_size, max_side, BOUNDED, pos, bounds, anchor)
                 if side > 0:
                     cells = side**dim
                     build_grid(pos, ids, n, n, box, cell_size, side, cells, cells, BOUNDED, dim, coords, bucket,

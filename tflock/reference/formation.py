@@ -34,8 +34,9 @@ def va_direction(params: FormationParams) -> np.ndarray:
     return np.array([math.cos(a), math.sin(a)])
 
 
-def va_position(t: int, params: FormationParams) -> np.ndarray:
-    """VA position at step t (float64): from the torus centre, |va| per time unit along its heading, wrapped."""
+def va_position(t: int | np.ndarray, params: FormationParams) -> np.ndarray:
+    """VA position at step t (float64): from the torus centre, |va| per time unit along its heading, wrapped; for
+    an (m, 1) array of steps, an (m, 2) array of positions (the same values)."""
     p = params.world / 2 + t * params.va_speed * va_direction(params)
     p = p - params.world * np.floor(p / params.world)
     return np.where((p >= params.world) | (p < 0), 0.0, p)
