@@ -26,8 +26,9 @@ rho, their mean distance to the VA.
 Every number is reported with its replicas and 95 % confidence interval (:mod:`tflock.reproduce.stats`). phi and
 rho are taken at the end of the run (the formation then moves rigidly with the VA, so they equal their values when
 the DF is first reached, up to the last few degrees of alignment); tau is exact (checked every step) and equals the
-cap when the DF is not reached. The formation replicas are not batched (one run after another: about 4 s of one
-core each), so the full size takes hours: see docs/reproduce.md.
+cap when the DF is not reached. The formation replicas are not batched: one run after another, each running the
+steps between its observations in one launch on one thread (about 45 ms a run of 3000 steps on the project's 2-core
+host; the 1215 runs of the full size about a minute): see docs/reproduce.md.
 """
 
 import math
@@ -57,7 +58,8 @@ PAPER_FIG4 = {
 }
 BEST = PAPER_FIG4["a"][3]  # the configuration of Figs. 5 and 7
 #: our reduced grid of every weight (the paper: 1, 2, ..., 10): the extremes for every strategy, and a middle level
-#: for S-2.2, whose alpha_a x alpha_av plane is Fig. 6 (a run costs ~4 s of one core: 3000 steps of ~1.3 ms)
+#: for S-2.2, whose alpha_a x alpha_av plane is Fig. 6 (the paper's ~44,000 configurations x 10 runs would take
+#: about 5 hours of one core at ~45 ms a run)
 LEVELS, FIG6_LEVELS = (1.0, 10.0), (1.0, 3.0, 10.0)
 #: replicas at full size: the paper's configurations, each grid configuration, each (p, delta) of Fig. 7
 PAPER_REPLICAS, GRID_REPLICAS, FIG7_REPLICAS = 10, 5, 10
