@@ -248,3 +248,40 @@ def test_formation_serial_steps_match_single_launches(engine, monkeypatch, confi
                                   getattr(serial, name)[serial.cur].to_numpy()), (steps, name)
         assert np.array_equal(single.trig.to_numpy(), serial.trig.to_numpy()), steps
     assert layouts == {WINDOW, PERIODIC}, layouts
+
+
+def test_potential_small_swarm_grid_comes_from_the_steps_launch(engine, monkeypatch):
+    """A small switching swarm's grid for its observations (metrics, guard, frame) comes from _lane_steps with no
+    step, not from the host's build (whose kernels a run then never loads): the same layout, cells, order and runs
+    as the host's build (FUSED_MAX_N = 0), and the same metrics."""
+    import tflock.models.potential as potential
+    import tflock.neighbors as neighbors
+
+    if engine.arch != "cpu":
+        pytest.skip("the lane-wise launch is the CPU's")
+    cfg = load_config(model="potential", overrides={"params.n": 60, "params.box": 8.0, "seed": 3,
+                                                    "engine.precision": PRECISION})
+    launched, hosted = Potential(cfg.params, cfg.seed, engine), Potential(cfg.params, cfg.seed, engine)
+    host_builds = []
+    build = neighbors._build
+    monkeypatch.setattr(neighbors, "_build", lambda *args: host_builds.append(1) or build(*args))
+    for model in (launched, hosted):
+        model.advance(7)
+        model.invalidate()  # the grid the steps left is forgotten: the observation builds it
+    launched._ensure_grid()
+    assert host_builds == []
+    with monkeypatch.context() as m:
+        m.setattr(potential, "FUSED_MAX_N", 0)
+        hosted._ensure_grid()
+        assert host_builds == [1]
+    a, b = launched.grid, hosted.grid
+    assert a.geometry == b.geometry and a.geometry.boundary == neighbors.BOUNDED
+    cells = a.geometry.total_buckets
+    assert np.array_equal(a.start.to_numpy()[: cells + 1], b.start.to_numpy()[: cells + 1])
+    assert np.array_equal(a.runs().to_numpy()[:cells], b.runs().to_numpy()[:cells])
+    for name in ("order", "id_sorted", "pos_sorted", "coords_sorted"):
+        assert np.array_equal(getattr(a, name).to_numpy(), getattr(b, name).to_numpy()), name
+    with monkeypatch.context() as m:
+        m.setattr(potential, "FUSED_MAX_N", 0)
+        expected = hosted.metrics()
+    assert launched.metrics() == expected

@@ -890,15 +890,28 @@ class Potential(GridModel):
             self.vel, self.scratch = self.scratch, self.vel
         self.step_index += 1
 
+    def _ensure_grid(self) -> None:
+        """The grid of the current state: a small swarm's (lane-wise, on the CPU) from :func:`_lane_steps` with no
+        step, the launch that builds it between steps, where a bounded grid holds the swarm; else the host's build.
+        Both give the same grid; the launch's kernel is the one the steps load anyway, and the host's build takes
+        three kernels of its own."""
+        if self._grid_step != self.step_index and self.lane_wise and self.params.n <= FUSED_MAX_N:
+            self._lane_steps(0)
+        super()._ensure_grid()
+
     def _lane_steps(self, steps: int) -> int:
         """Up to `steps` lane-wise steps in one launch of :func:`_lane_steps`, from the grid and the accelerations
         ready for the current state (built by a frame, summed by the metrics pass), and the grid of the state they
-        make; the number made (fewer where the swarm spread beyond a bounded grid)."""
+        make; the number made (fewer where the swarm spread beyond a bounded grid). With steps = 0, only that
+        grid's build (where not built yet)."""
         p, grid = self.params, self.grid
         t0, ready = self.step_index, 0
         if self._grid_step == t0 and grid.geometry.boundary == BOUNDED:
             ready = 2 if self._next_step.summed == (t0, grid.builds) else 1
-        draw, bits, word_rank, drawn = self._draw_arguments(2, self.dim, made=t0 + steps)
+        if steps:
+            draw, bits, word_rank, drawn = self._draw_arguments(2, self.dim, made=t0 + steps)
+        else:  # rows a step wrote for this state stay
+            draw, bits, word_rank, drawn = self._no_draw_arguments(2, self.dim)
         _lane_steps(steps, ready, grid.geometry.cells_per_side, grid.max_side, int(draw), p.n, p.box, grid.radius,
                     p.radius**2, p.desired_distance**2, p.dt, self.dim, grid.coords, grid.bucket, grid.counts,
                     grid.start, grid.order, grid.slot_of, grid.pos_sorted, grid.coords_sorted, grid.id_sorted,
