@@ -413,6 +413,27 @@ def test_bad_params_are_clear_errors(override, key):
         load_config(model="formation", overrides=override)
 
 
+def test_small_swarm_frame_rows_without_a_launch(engine, monkeypatch):
+    """A small swarm's frame rows come from NumPy on the arrays' host memory (CPU): the same frame, and the same
+    `where` scratch (checkpoints keep it), as the kernel's (SMALL_SWARM_MAX = 0)."""
+    import tflock.taichi_host as taichi_host
+
+    if engine.arch != "cpu":
+        pytest.skip("host views of ndarrays are the CPU's")
+    p = small("S-2.2", fail_prob=0.2)
+    host, kernel = Formation(p, 4, engine), Formation(p, 4, engine)
+    selected = np.array([0, 3, 7, 8, 21, 59])
+    for model in (host, kernel):
+        model.advance(9)
+    a = host.frame(selected, 100)
+    with monkeypatch.context() as m:
+        m.setattr(taichi_host, "SMALL_SWARM_MAX", 0)
+        b = kernel.frame(selected, 100)
+    for name in ("positions", "directions", "colors", "ids", "edges"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(host.where.to_numpy(), kernel.where.to_numpy())
+
+
 def test_frame_draws_va_and_rules(engine):
     p = params(n=50, init_length=30.0, init_width=20.0)
     model = Formation(p, 0, engine)

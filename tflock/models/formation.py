@@ -88,7 +88,7 @@ from tflock.neighbors import (
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
 from tflock.space import PERIODIC, REFLECTING, WINDOW, displacement, wrap_periodic, wrap_pi, wrap_two_pi
-from tflock.taichi_host import host_array
+from tflock.taichi_host import host_array, host_view, small_host_view
 
 TWO_PI = 2 * math.pi
 # slots of the constants array
@@ -757,12 +757,25 @@ class Formation(Model):
             "separating": float(s[6] / n),
         }
 
-    def _rows(self, agents: ti.Ndarray, m: int) -> np.ndarray:
-        """(m, 5) rows x, y, theta, rule, speed of agents[:m]."""
-        k = self.cur
+    def _rows(self, selected: np.ndarray) -> np.ndarray:
+        """(m, 5) rows x, y, theta, rule, speed of the `selected` agents: :func:`_frame_rows`, or for a small swarm
+        on the CPU the same copies in NumPy on the arrays' host memory (a launch costs more than such a pass)."""
+        k, n, m = self.cur, self.params.n, len(selected)
+        x = small_host_view(self.pos[k], n)
+        if x is not None:
+            where = host_view(self.where)
+            where[host_view(self.ids[k])[:n]] = np.arange(n, dtype=where.dtype)  # as the kernel leaves it
+            e = where[np.asarray(selected, dtype=np.int64)]
+            f = host_view(self.f[k])
+            rows = np.empty((m, 5), dtype=x.dtype)
+            rows[:, 0], rows[:, 1], rows[:, 2] = x[0, e], x[1, e], f[THETA, e]
+            rows[:, 3], rows[:, 4] = host_view(self.rule)[e], f[SPEED, e]
+            return rows
+        ids = scratch((max(1, m),), ti.i32)  # made once (making an ndarray costs about a millisecond)
         out = scratch((max(1, m), 5), self.pos[k].dtype)
         if m:
-            _frame_rows(m, self.params.n, agents, self.ids[k], self.where, self.pos[k], self.f[k], self.rule, out)
+            ids.from_numpy(np.asarray(selected, dtype=np.int32))
+            _frame_rows(m, n, ids, self.ids[k], self.where, self.pos[k], self.f[k], self.rule, out)
         return host_array(out)[:m].copy()
 
     def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
@@ -770,10 +783,7 @@ class Formation(Model):
         grey: communication failure) with arrows of their velocity / |vout|, edges within the vision radius; the VA
         with its heading and VAIR circle."""
         p = self.params
-        ids = scratch((max(1, len(selected)),), ti.i32)  # made once (making an ndarray costs about a millisecond)
-        if len(selected):
-            ids.from_numpy(np.asarray(selected, dtype=np.int32))
-        rows = self._rows(ids, len(selected))
+        rows = self._rows(selected)
         relative = rows[:, 4] / p.out_speed
         directions = (np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1) * relative[:, None]).astype(np.float32)
         va_heading = ref.va_direction(p).astype(np.float32)
