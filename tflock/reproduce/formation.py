@@ -11,9 +11,9 @@ rho, their mean distance to the VA.
   among the configurations that reach the DF in all runs, the extremes: min tau = 871 (S-2.2), max tau = 1971
   (S-1.1), min phi = 0.09 (S-1.3), max phi = 0.36 (S-1.4), min rho = 5.20 (S-1.2), max rho = 13.88 (S-2.4), with
   their weights. We run those six configurations (10 replicas, as the paper), and a REDUCED grid: every weight
-  at 1 or 10 (8 configurations for the S-x.1 and S-x.2 strategies, which do not use alpha_c, 16 for the others),
-  and in {1, 3, 10} for S-2.2 (27), 115 configurations in all, with 10 replicas each as the paper. Fig. 6 (the
-  convergence ratio of S-2.2 over alpha_a and alpha_av) comes out of the S-2.2 grid.
+  in {1, 4, 7, 10} (64 configurations for the S-x.1 and S-x.2 strategies, which do not use alpha_c, 256 for the
+  others), 1280 configurations in all, with 10 replicas each as the paper. Fig. 6 (the convergence ratio of S-2.2
+  over alpha_a and alpha_av) comes out of the S-2.2 grid.
 - Fig. 7: S-2.2 with the weights of Fig. 4a, tau averaged over runs for communication-failure probability p in
   {0, 0.1, ..., 0.9} and heading noise delta in {0, 0.1, ..., 0.9} degrees, 50 runs each, as the paper. The paper
   reports tau rising smoothly for p <= 0.8, jumping at p = 0.9, and no effect of the noise; that last claim is
@@ -28,7 +28,7 @@ rho are taken at the end of the run (the formation then moves rigidly with the V
 the DF is first reached, up to the last few degrees of alignment); tau is exact (checked every step) and equals the
 cap when the DF is not reached. The formation replicas are not batched: one run after another, each running the
 steps between its observations in one launch on one thread (about 45 ms a run of 3000 steps on the project's 2-core
-host; the 1215 runs of the full size about a minute): see docs/reproduce.md.
+host; the 18,040 runs of the full size about 8 minutes with --workers 2): see docs/reproduce.md.
 """
 
 import math
@@ -57,10 +57,10 @@ PAPER_FIG4 = {
     "f": ("rho", "max", "S-2.4", (2, 3, 6, 9), 13.88),
 }
 BEST = PAPER_FIG4["a"][3]  # the configuration of Figs. 5 and 7
-#: our reduced grid of every weight (the paper: 1, 2, ..., 10): the extremes for every strategy, and a middle level
-#: for S-2.2, whose alpha_a x alpha_av plane is Fig. 6 (the paper's ~44,000 configurations x 10 runs would take
-#: about 5 hours of one core at ~45 ms a run)
-LEVELS, FIG6_LEVELS = (1.0, 10.0), (1.0, 3.0, 10.0)
+#: our reduced grid of every weight (the paper: 1, 2, ..., 10), for every strategy; S-2.2's alpha_a x alpha_av plane
+#: is Fig. 6 (the paper's ~44,000 configurations x 10 runs would take about 5 hours of one core at ~45 ms a run,
+#: these 1280 about 9 minutes)
+LEVELS = (1.0, 4.0, 7.0, 10.0)
 #: replicas at full size: the paper's configurations, each grid configuration, each (p, delta) of Fig. 7
 PAPER_REPLICAS, GRID_REPLICAS, FIG7_REPLICAS = 10, 10, 50
 #: Fig. 7's failure probabilities p and heading noises delta (degrees), as the paper's
@@ -119,7 +119,7 @@ class Formation(Experiment):
         if quick:  # a tiny grid: S-2.2, alpha_a against a large alpha_av (Fig. 6's axis)
             grids = {"S-2.2": {"align": [1.0, 10.0], "cohesion": [1.0], "va_align": [10.0], "va_cohesion": [4.0]}}
         else:
-            grids = {s: {w: list(FIG6_LEVELS if s == "S-2.2" else LEVELS) if w != "cohesion" or _uses_cohesion(s)
+            grids = {s: {w: list(LEVELS) if w != "cohesion" or _uses_cohesion(s)
                          else [1.0] for w in WEIGHTS} for s in STRATEGIES}
         for strategy, levels in grids.items():
             sweeps[f"formation-grid-{_slug(strategy)}"] = {
@@ -433,7 +433,7 @@ class Formation(Experiment):
                            + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
         rho_all = mean_ci(paper["rho_mean"].to_numpy())
 
-        levels_text = ", ".join(f"{v:g}" for v in LEVELS) + "}, S-2.2 {" + ", ".join(f"{v:g}" for v in FIG6_LEVELS)
+        levels_text = ", ".join(f"{v:g}" for v in LEVELS)
         size = (f"quick: 1 replica (2 for the noise pairs), runs and tau capped at {cap} tu, a 2-configuration grid: "
                 "no interval, so no agreement, can be claimed" if quick else
                 f"the paper's six configurations x {paper['replicas'].max()} runs as the paper; our grid: weights in "
