@@ -1,6 +1,8 @@
 """Runs of steps between observations (Simulation.step hands the model advance(k)): the same trajectory bit for
 bit as step by step, whatever the cadences, for the models and options the fused paths cover."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import PRECISION, assert_same_run
@@ -210,6 +212,7 @@ def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params
     assert_same_announced_frame(monkeypatch, (potential, "FUSED_MAX_N"), single, fused, cfg.params.n)
 
 
+PAPERS = Path(__file__).resolve().parents[1] / "configs" / "papers"
 FORMATION_SERIAL = [
     ("formation-s1-1.toml", {}),  # the paper's setup: the swarm outgrows the window (steps 42-...) and fits again
     ("formation-failure-noise.toml", {"params.fail_prob": 0.3, "params.noise_deg": 0.9}),  # the random draws
@@ -225,7 +228,7 @@ def test_formation_serial_steps_match_single_launches(engine, monkeypatch, confi
 
     if engine.arch != "cpu":
         pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
-    cfg = load_config(f"configs/papers/{config}", overrides={**overrides, "engine.precision": PRECISION})
+    cfg = load_config(PAPERS / config, overrides={**overrides, "engine.precision": PRECISION})
     single = formation.Formation(cfg.params, cfg.seed, engine)
     serial = formation.Formation(cfg.params, cfg.seed, engine)
     layouts = set()
