@@ -704,10 +704,8 @@ class Formation(Model):
     def _serial_steps(self, steps: int) -> None:
         """`steps` steps in one launch of :func:`_serial_steps`."""
         p, grid, t0 = self.params, self.grid, self.step_index
-        va = scratch((SERIAL_RUN + 1, 2), self.pos[0].dtype)
-        positions = np.zeros((SERIAL_RUN + 1, 2))
-        positions[: steps + 1] = ref.va_position(np.arange(t0, t0 + steps + 1)[:, None], p)
-        va.from_numpy(positions.astype(self.engine.real))
+        va = scratch((SERIAL_RUN + 1, 2), self.pos[0].dtype)  # written on its host memory (this path is the CPU's)
+        host_view(va)[: steps + 1] = ref.va_position(np.arange(t0, t0 + steps + 1)[:, None], p)
         tiling, last = grid.fallback, scratch((1,), ti.i32)
         k = self.cur
         _serial_steps(steps, t0, self.seed, p.n, self.consts, self._out_set, self._in_set, self._zones, va, p.world,
