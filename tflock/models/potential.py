@@ -33,6 +33,7 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.field import VECTORS
 from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
@@ -537,10 +538,11 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
                       parent: ti.types.ndarray(), size: ti.types.ndarray()):
     """The components of the graph |r_ij| < R in ``parent``, ``LANES`` agents at a time (stripes of layers, a stripe
     a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them)."""
-    ti.loop_config(block_dim=1)  # a stripe a task
-    for j in range(n_stripes):
-        _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim, layout, start, run_end, id_sorted,
-                           pos_sorted, parent, size)
+    for t in range(n_stripes * TASK_STRIDE):  # a stripe a task (tflock.cpu_tasks)
+        j = task_at(t)
+        if j >= 0:
+            _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim, layout, start, run_end,
+                               id_sorted, pos_sorted, parent, size)
 
 
 @ti.kernel

@@ -39,6 +39,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.config import VicsekParams
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, opaque_copy, sin_cos
 from tflock.field import ANGLES, UNIT_VECTORS
@@ -494,60 +495,61 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
     """:func:`_neighbour_sums` for a state whose metrics are taken: the same sums, the count 1 + n_i for every rule
     (the neighbour counts), and the components of the R-graph in ``parent`` (stripes of layers, see
     tflock.lane_graph; LaneComponents.finish completes them)."""
-    ti.loop_config(block_dim=1)  # a stripe a task
-    for j in range(n_stripes):
-        r2 = radius * radius
-        b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
-        for b in range(b_lo, b_hi):
-            row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
-            wraps = run_wraps(row, x0, x1, nc, boundary)
-            for block in range((a1 - a0 + LANES - 1) // LANES):
-                i0 = a0 + block * LANES
-                i1 = ti.min(i0 + LANES, a1)
-                px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
-                py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
-                th = lanes(payload, 2, i0, a1 - 1, LANES)
-                acc_a = ti.Vector([0.0] * LANES)
-                acc_b = ti.Vector([0.0] * LANES)
-                count = ti.Vector([0.0] * LANES)
-                label = ti.Vector([NO_LABEL] * LANES)
-                other = ti.Vector([NO_LABEL] * LANES)
-                inmask = ti.Vector([0] * LANES)
-                for r in range(3):
-                    b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
-                    for h in range(2):
-                        begin = ti.select(h == 0, b0, b1)
-                        end = ti.select(h == 0, e0, e1)
-                        if wraps:
-                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
-                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
-                                box, pos_sorted, payload, parent, rule, True)
-                        else:
-                            acc_a, acc_b, count, label, other, inmask = _stencil_graph(
-                                begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
-                                box, pos_sorted, payload, parent, rule, False)
-                for k in ti.static(range(LANES)):
-                    if i0 + k < a1:
-                        sums[0, i0 + k] = acc_a[k]
-                        sums[1, i0 + k] = acc_b[k]
-                        sums[2, i0 + k] = count[k]
-                roots, recheck = block_roots(i1 - i0, label, other, parent, size)
-                while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
-                    bit = recheck & (-recheck)
-                    q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
-                    p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
-                    root = -1
+    for t in range(n_stripes * TASK_STRIDE):  # a stripe a task (tflock.cpu_tasks)
+        j = task_at(t)
+        if j >= 0:
+            r2 = radius * radius
+            b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
+            for b in range(b_lo, b_hi):
+                row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
+                wraps = run_wraps(row, x0, x1, nc, boundary)
+                for block in range((a1 - a0 + LANES - 1) // LANES):
+                    i0 = a0 + block * LANES
+                    i1 = ti.min(i0 + LANES, a1)
+                    px = lanes(pos_sorted, 0, i0, a1 - 1, LANES)
+                    py = lanes(pos_sorted, 1, i0, a1 - 1, LANES)
+                    th = lanes(payload, 2, i0, a1 - 1, LANES)
+                    acc_a = ti.Vector([0.0] * LANES)
+                    acc_b = ti.Vector([0.0] * LANES)
+                    count = ti.Vector([0.0] * LANES)
+                    label = ti.Vector([NO_LABEL] * LANES)
+                    other = ti.Vector([NO_LABEL] * LANES)
+                    inmask = ti.Vector([0] * LANES)
                     for r in range(3):
                         b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
                         for h in range(2):
-                            first = ti.max(s_lo, ti.select(h == 0, b0, b1))
-                            for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
-                                d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
-                                if d.norm_sqr() <= r2:
-                                    root = join_candidate(root, k, parent, size)
-                    roots[q] = root
-                    recheck ^= bit
-                settle_block(i0, i1 - i0, roots, inmask, parent, size)
+                            begin = ti.select(h == 0, b0, b1)
+                            end = ti.select(h == 0, e0, e1)
+                            if wraps:
+                                acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                    begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                    box, pos_sorted, payload, parent, rule, True)
+                            else:
+                                acc_a, acc_b, count, label, other, inmask = _stencil_graph(
+                                    begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, label, other, inmask, r2,
+                                    box, pos_sorted, payload, parent, rule, False)
+                    for k in ti.static(range(LANES)):
+                        if i0 + k < a1:
+                            sums[0, i0 + k] = acc_a[k]
+                            sums[1, i0 + k] = acc_b[k]
+                            sums[2, i0 + k] = count[k]
+                    roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                    while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
+                        bit = recheck & (-recheck)
+                        q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                        p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
+                        root = -1
+                        for r in range(3):
+                            b0, e0, b1, e1 = run_spans(row, x0, x1, r, nc, start, boundary, 2)
+                            for h in range(2):
+                                first = ti.max(s_lo, ti.select(h == 0, b0, b1))
+                                for k in range(first, ti.min(i0, ti.select(h == 0, e0, e1))):
+                                    d = displacement(p, ti.Vector([pos_sorted[0, k], pos_sorted[1, k]]), box, boundary)
+                                    if d.norm_sqr() <= r2:
+                                        root = join_candidate(root, k, parent, size)
+                        roots[q] = root
+                        recheck ^= bit
+                    settle_block(i0, i1 - i0, roots, inmask, parent, size)
 
 
 @ti.func
