@@ -35,25 +35,32 @@ def upload(x: np.ndarray):
     return pos, ids
 
 
+@pytest.mark.parametrize("replicas", [1, 3])
 @pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("counted", ["kernel", "numpy"])
-def test_box_counts_and_profiles_match_reference(engine, dim, counted, monkeypatch):
-    """The kernels, and for small swarms on the CPU NumPy over the arrays' memory, count as the reference does."""
+@pytest.mark.parametrize("counted", ["kernel", "kernel-1-part", "kernel-3-parts", "kernel-atomics", "numpy"])
+def test_box_counts_and_profiles_match_reference(engine, dim, counted, replicas, monkeypatch):
+    """The kernels (in partial tables, one per CPU thread or as many as asked, or one table with atomics as on a
+    GPU), and for small swarms on the CPU NumPy over the arrays' memory, count as the reference does."""
+    import tflock.observables
     import tflock.taichi_host
 
-    monkeypatch.setattr(tflock.taichi_host, "SMALL_SWARM_MAX", 0 if counted == "kernel" else 10**6)
-    box, n, replicas = 7.0, 600, 3
+    monkeypatch.setattr(tflock.taichi_host, "SMALL_SWARM_MAX", 0 if counted.startswith("kernel") else 10**6)
+    parts = {"kernel-1-part": 1, "kernel-3-parts": 3, "kernel-atomics": 0}
+    if counted in parts:
+        monkeypatch.setattr(tflock.observables, "count_parts", lambda: parts[counted])
+    box, n = 7.0, 600
     rng = np.random.default_rng(dim)
     systems = [rng.uniform(0, box, (n, dim)).astype(REAL) for _ in range(replicas)]
     systems[0][:5] = box  # on the far walls (a reflecting box holds x = L)
-    systems[1][:3] = np.nextafter(REAL(0), REAL(-1))  # just below 0, truncated into the first box
+    systems[-1][5:8] = np.nextafter(REAL(0), REAL(-1))  # just below 0, truncated into the first box
     pos, ids = upload(np.concatenate(systems))
+    axes = [dim - 1, 0, 1][:replicas]
     counts = box_counts(pos, ids, n, replicas, box, 8)
-    profiles = axis_profile(pos, ids, n, [0, dim - 1, 1], box, 20)
+    profiles = axis_profile(pos, ids, n, axes, box, 20)
     for r, x in enumerate(systems):
         np.testing.assert_array_equal(counts[r], box_counts_np(x, box, 8))
         assert counts[r].sum() == n
-        np.testing.assert_array_equal(profiles[r], axis_profile_np(x, [0, dim - 1, 1][r], box, 20))
+        np.testing.assert_array_equal(profiles[r], axis_profile_np(x, axes[r], box, 20))
 
 
 def test_binder_cumulant_of_independent_headings_is_n_plus_1_over_3n():

@@ -7,7 +7,7 @@
   in 3D (their means <|sum e|^4> = 2N^2 - N and N^2 + 2N(N - 1)/3). Near a discontinuous transition G dips below
   zero in large enough systems (coexisting ordered and disordered states give phi a two-peaked law).
 - **Giant number fluctuations**: the agents are counted in the M^d boxes of side L / M of a periodic or
-  reflecting box (:func:`box_counts`, a kernel over all agents with integer atomics, so the counts do not depend
+  reflecting box (:func:`box_counts`, a kernel over all agents counting in integers, so the counts do not depend
   on the thread count), for M = 4, 8, ... up to boxes that hold about one agent on average (at most 256 per side
   in 2D, 32 in 3D); boxes of side 2L / M are sums of 2^d boxes of side L / M. The standard deviation Delta N of
   the count against its mean <N> grows as <N>^a: a = 1/2 for independent agents, about 0.8 in the ordered phase
@@ -26,8 +26,10 @@ from collections.abc import Hashable, Mapping, Sequence
 
 import numpy as np
 import taichi as ti
+from taichi.lang import impl
 
-from tflock.taichi_host import host_view, small_host_view
+from tflock.cpu_tasks import TASK_STRIDE, task_at
+from tflock.taichi_host import CPU_ARCHES, host_array, host_view, small_host_view
 
 #: metrics that are order parameters: the sweep tables give their Binder cumulant and susceptibility
 ORDER_PARAMETERS = ("polarization", "phi_theta")
@@ -71,23 +73,87 @@ def order_statistics(samples: Mapping[str, np.ndarray], n: int, suffix: str = ""
 # ---------------------------------------------------------------------------------------------------- kernels
 
 
-@ti.kernel
-def _box_counts(n: ti.i32, per_replica: ti.i32, m: ti.i32, scale: float, dim: ti.template(),
-                pos: ti.types.ndarray(), ids: ti.types.ndarray(), counts: ti.types.ndarray()):
-    for e in range(n):
-        b = 0
-        for a in ti.static(range(dim - 1, -1, -1)):  # row-major, the last axis slowest
-            b = b * m + ti.math.clamp(ti.cast(pos[a, e] * scale, ti.i32), 0, m - 1)
-        ti.atomic_add(counts[ids[e] // per_replica, b], 1)
+def count_parts() -> int:
+    """Partial tables a count kernel fills on the CPU: one per thread, each from its own share of the agents with
+    plain increments, summed after (an atomic add per agent costs several times an increment); 0 on a GPU, whose
+    kernels count into one table with atomics. Integer counts: the sum does not depend on the parts."""
+    config = impl.current_cfg()
+    return max(1, config.cpu_max_num_threads) if config.arch in CPU_ARCHES else 0
 
 
-@ti.kernel
-def _axis_profile(n: ti.i32, per_replica: ti.i32, bins: ti.i32, scale: float, pos: ti.types.ndarray(),
-                  ids: ti.types.ndarray(), axis: ti.types.ndarray(), hist: ti.types.ndarray()):
-    for e in range(n):
+@ti.func
+def _share(c, parts, n):
+    """First agent of part c of `parts` even shares of n (64-bit products: n may be near 2^31)."""
+    return ti.cast(ti.cast(c, ti.i64) * n // parts, ti.i32)
+
+
+@ti.func
+def _box_of(e, m, scale, dim: ti.template(), pos: ti.template()):
+    """Box of agent e among m^dim boxes of side 1 / scale (coordinates truncated, clamped to the box)."""
+    b = 0
+    for a in ti.static(range(dim - 1, -1, -1)):  # row-major, the last axis slowest
+        b = b * m + ti.math.clamp(ti.cast(pos[a, e] * scale, ti.i32), 0, m - 1)
+    return b
+
+
+@ti.func
+def _slab_of(e, r, bins, scale, pos: ti.template(), axis: ti.template()):
+    """Slab of agent e (of replica r) across axis[r], of `bins` of width 1 / scale."""
+    return ti.math.clamp(ti.cast(pos[axis[r], e] * scale, ti.i32), 0, bins - 1)
+
+
+@ti.func
+def _replica_of(e, per_replica, batched: ti.template(), ids: ti.template()):
+    """Replica of agent e: its id // per_replica in a batch, else 0 (no division: it costs more than the count)."""
+    r = 0
+    if ti.static(batched):
         r = ids[e] // per_replica
-        b = ti.math.clamp(ti.cast(pos[axis[r], e] * scale, ti.i32), 0, bins - 1)
-        ti.atomic_add(hist[r, b], 1)
+    return r
+
+
+@ti.kernel
+def _box_counts(n: ti.i32, per_replica: ti.i32, m: ti.i32, scale: float, dim: ti.template(), parts: ti.template(),
+                batched: ti.template(), pos: ti.types.ndarray(), ids: ti.types.ndarray(), counts: ti.types.ndarray()):
+    """counts[c, r, b]: agents of part c of replica r in box b, `parts` of them (:func:`count_parts`; 0: one table
+    filled with atomics)."""
+    if ti.static(parts > 0):
+        for t in range(parts * TASK_STRIDE):  # a part a task (tflock.cpu_tasks)
+            c = task_at(t)
+            if c >= 0:
+                for e in range(_share(c, parts, n), _share(c + 1, parts, n)):
+                    counts[c, _replica_of(e, per_replica, batched, ids), _box_of(e, m, scale, dim, pos)] += 1
+    else:
+        for e in range(n):
+            ti.atomic_add(counts[0, _replica_of(e, per_replica, batched, ids), _box_of(e, m, scale, dim, pos)], 1)
+
+
+@ti.kernel
+def _axis_profile(n: ti.i32, per_replica: ti.i32, bins: ti.i32, scale: float, parts: ti.template(),
+                  batched: ti.template(), pos: ti.types.ndarray(), ids: ti.types.ndarray(), axis: ti.types.ndarray(),
+                  hist: ti.types.ndarray()):
+    """hist[c, r, b]: agents of part c of replica r in slab b across axis[r] (`parts` as in :func:`_box_counts`)."""
+    if ti.static(parts > 0):
+        for t in range(parts * TASK_STRIDE):  # a part a task (tflock.cpu_tasks)
+            c = task_at(t)
+            if c >= 0:
+                for e in range(_share(c, parts, n), _share(c + 1, parts, n)):
+                    r = _replica_of(e, per_replica, batched, ids)
+                    hist[c, r, _slab_of(e, r, bins, scale, pos, axis)] += 1
+    else:
+        for e in range(n):
+            r = _replica_of(e, per_replica, batched, ids)
+            ti.atomic_add(hist[0, r, _slab_of(e, r, bins, scale, pos, axis)], 1)
+
+
+def _tables(parts: int, *shape: int) -> ti.Ndarray:
+    """The i32 tables a count kernel fills: (max(parts, 1), *shape)."""
+    return ti.ndarray(ti.i32, (max(parts, 1), *shape))
+
+
+def _summed(tables: ti.Ndarray) -> np.ndarray:
+    """The partial tables (parts, ...) of a count kernel, summed."""
+    values = host_array(tables)
+    return values[0].copy() if len(values) == 1 else values.sum(axis=0, dtype=values.dtype)
 
 
 def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, per_side: int, scale: float,
@@ -118,34 +184,38 @@ def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
                counts: ti.Ndarray | None = None) -> np.ndarray:
     """Agents in each of the m^d boxes of side box / m, per replica: (replicas, m, ..., m) ints, the first box axis
     the last coordinate (row-major). `pos` (d, n) and `ids` in any arrangement of the agents. `counts`: an i32
-    ndarray (replicas, m^d) to count in (a new one when None: making one costs about a millisecond)."""
+    ndarray (max(:func:`count_parts`, 1), replicas, m^d) to count in (a new one when None: making one costs about a
+    millisecond)."""
     dim, n = pos.shape
     host = _host_bins(pos, ids, per_replica, replicas, m, m / box, None)
     if host is not None:
         return host.reshape((replicas,) + (m,) * dim)
+    parts = count_parts()
     if counts is None:
-        counts = ti.ndarray(ti.i32, (replicas, m**dim))
+        counts = _tables(parts, replicas, m**dim)
     counts.fill(0)
-    _box_counts(n, per_replica, m, m / box, dim, pos, ids, counts)
-    return counts.to_numpy().reshape((replicas,) + (m,) * dim)
+    _box_counts(n, per_replica, m, m / box, dim, parts, replicas > 1, pos, ids, counts)
+    return _summed(counts).reshape((replicas,) + (m,) * dim)
 
 
 def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Sequence[int], box: float,
                  bins: int, buffers: tuple[ti.Ndarray, ti.Ndarray] | None = None) -> np.ndarray:
     """Agents in each of `bins` slabs of width box / bins across axis ``axes[r]``, per replica r: (replicas, bins).
-    `buffers`: i32 ndarrays (replicas,) for the axes and (replicas, bins) to count in (new ones when None)."""
+    `buffers`: i32 ndarrays (replicas,) for the axes and (max(:func:`count_parts`, 1), replicas, bins) to count in
+    (new ones when None)."""
     n = pos.shape[1]
     replicas = len(axes)
     host = _host_bins(pos, ids, per_replica, replicas, bins, bins / box, axes)
     if host is not None:
         return host
+    parts = count_parts()
     if buffers is None:
-        buffers = (ti.ndarray(ti.i32, replicas), ti.ndarray(ti.i32, (replicas, bins)))
+        buffers = (ti.ndarray(ti.i32, replicas), _tables(parts, replicas, bins))
     axis, hist = buffers
     axis.from_numpy(np.asarray(axes, dtype=np.int32))
     hist.fill(0)
-    _axis_profile(n, per_replica, bins, bins / box, pos, ids, axis, hist)
-    return hist.to_numpy()
+    _axis_profile(n, per_replica, bins, bins / box, parts, replicas > 1, pos, ids, axis, hist)
+    return _summed(hist)
 
 
 # ---------------------------------------------------------------------------------------------------- summaries
@@ -228,8 +298,9 @@ class TransitionObservables:
         if not self.enabled:
             return
         # the kernels' outputs, made once (small swarms observe every step or so)
-        self._counts = ti.ndarray(ti.i32, (replicas, self.levels[-1] ** dim)) if self.levels else None
-        self._profile = (ti.ndarray(ti.i32, replicas), ti.ndarray(ti.i32, (replicas, self.bins)))
+        parts = count_parts()
+        self._counts = _tables(parts, replicas, self.levels[-1] ** dim) if self.levels else None
+        self._profile = (ti.ndarray(ti.i32, replicas), _tables(parts, replicas, self.bins))
         self._last_profile: tuple[Hashable, tuple[int, ...], np.ndarray] | None = None  # see profiles()
         self.profile_descriptions["band_profile"] = (f"density along the axis nearest to the mean heading, in "
                                                      f"{self.bins} slabs, / mean density")
