@@ -16,6 +16,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.components import Components, near, pair_sizes, pair_union
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import current_engine
 from tflock.lane_graph import count_roots
 from tflock.neighbors import (
@@ -44,23 +45,25 @@ def n_blocks(n: int) -> int:
 
 @ti.kernel
 def _angle_block_sums(theta: ti.types.ndarray(), n: ti.i32, reference: float, partial: ti.types.ndarray()):
-    _angle_sums(theta, n, reference, partial)
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            _angle_block(theta, n, reference, partial, blk)
 
 
 @ti.func
-def _angle_sums(theta: ti.template(), n, reference, partial: ti.template()):
-    """Per block of BLOCK agents: the sums of cos theta, sin theta and |wrap(theta - reference)|."""
-    for blk in range(partial.shape[0]):
-        c = 0.0
-        s = 0.0
-        gap = 0.0
-        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-            c += ti.cos(theta[i])
-            s += ti.sin(theta[i])
-            gap += ti.abs(wrap_pi(theta[i] - reference))
-        partial[blk, 0] = c
-        partial[blk, 1] = s
-        partial[blk, 2] = gap
+def _angle_block(theta: ti.template(), n, reference, partial: ti.template(), blk):
+    """Block blk of BLOCK agents: the sums of cos theta, sin theta and |wrap(theta - reference)|."""
+    c = 0.0
+    s = 0.0
+    gap = 0.0
+    for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+        c += ti.cos(theta[i])
+        s += ti.sin(theta[i])
+        gap += ti.abs(wrap_pi(theta[i] - reference))
+    partial[blk, 0] = c
+    partial[blk, 1] = s
+    partial[blk, 2] = gap
 
 
 @functools.lru_cache(maxsize=8)
@@ -318,11 +321,13 @@ class NeighbourGraph:
 @ti.kernel
 def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
     """partial[b] = sum of values over block b, in the type of `partial` (i64 sums of ints stay exact)."""
-    for blk in range(partial.shape[0]):
-        total = partial[blk] * 0
-        for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-            total += values[i]
-        partial[blk] = total
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            total = partial[blk] * 0
+            for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+                total += values[i]
+            partial[blk] = total
 
 
 def total(values: ti.Ndarray, n: int) -> float:
@@ -387,7 +392,8 @@ def _small_orders(theta: ti.types.ndarray(), pos: ti.types.ndarray(), n: ti.i32,
     """:func:`_angle_block_sums` and :func:`_pairs_exact` of a small swarm in one launch on one thread."""
     ti.loop_config(serialize=True)
     for _ in range(1):
-        _angle_sums(theta, n, reference, headings)
+        for blk in range(headings.shape[0]):
+            _angle_block(theta, n, reference, headings, blk)
         _pair_sums(pos, theta, n, box, boundary, dim, partial)
 
 

@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import current_engine, host_lanes
 from tflock.space import OPEN, PERIODIC, WINDOW, boundary_code, displacement
 
@@ -387,17 +388,19 @@ def _cell_bounds(n: ti.i32, dim: ti.template(), box: float, cell_size: float, la
     space's floor(p / R) (BOUNDED), or the same of the minimum-image position relative to the first agent, which
     becomes the `anchor` (WINDOW). bounds[0] is its lowest cell, bounds[1] its highest. Block extrema in parallel,
     then a serial pass over the blocks (no atomics on one shared address)."""
-    for blk in range(partial.shape[1]):
-        a = load_vec(pos, 0, dim)
-        lo = _window_cell(load_vec(pos, blk * SCAN_BLOCK, dim), a, box, cell_size, layout)
-        hi = lo
-        for e in range(blk * SCAN_BLOCK + 1, ti.min(n, (blk + 1) * SCAN_BLOCK)):
-            c = _window_cell(load_vec(pos, e, dim), a, box, cell_size, layout)
-            lo = ti.min(lo, c)
-            hi = ti.max(hi, c)
-        for d in ti.static(range(dim)):
-            partial[d, blk] = lo[d]
-            partial[dim + d, blk] = hi[d]
+    for t in range(partial.shape[1] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            a = load_vec(pos, 0, dim)
+            lo = _window_cell(load_vec(pos, blk * SCAN_BLOCK, dim), a, box, cell_size, layout)
+            hi = lo
+            for e in range(blk * SCAN_BLOCK + 1, ti.min(n, (blk + 1) * SCAN_BLOCK)):
+                c = _window_cell(load_vec(pos, e, dim), a, box, cell_size, layout)
+                lo = ti.min(lo, c)
+                hi = ti.max(hi, c)
+            for d in ti.static(range(dim)):
+                partial[d, blk] = lo[d]
+                partial[dim + d, blk] = hi[d]
     ti.loop_config(serialize=True)
     for d in range(dim):
         anchor[d, 0] = pos[d, 0]

@@ -24,6 +24,7 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.field import UNIT_VECTORS
 from tflock.frame import Frame, WorldSpec, arrow_length
@@ -145,26 +146,28 @@ def _order_sums(n: ti.i32, length: ti.i32, alpha: float, tol: float, mode: ti.te
                 dirs: ti.types.ndarray(), phi: ti.types.ndarray(), partial: ti.types.ndarray()):
     """Per segment of `length` elements (by_agent: agents, element ``order[slot_of[agent]]``, so a segment can be
     one replica of a batch): sum d_i, sum c_i d_i, sum c_i, sum c_i |d_i| (c_i = c_alpha(phi_i))."""
-    for seg in range(partial.shape[0]):
-        sd = ti.Vector([0.0] * dim)
-        sv = ti.Vector([0.0] * dim)
-        sc = 0.0
-        ss = 0.0
-        for k in range(seg * length, ti.min(n, (seg + 1) * length)):
-            e = k
-            if ti.static(by_agent):
-                e = order[slot_of[k]]
-            d = load_vec(dirs, e, dim)
-            c = speed_coefficient(phi[e], alpha, tol, mode)
-            sd += d
-            sv += c * d
-            sc += c
-            ss += c * d.norm()
-        for a in ti.static(range(dim)):
-            partial[seg, a] = sd[a]
-            partial[seg, dim + a] = sv[a]
-        partial[seg, 2 * dim] = sc
-        partial[seg, 2 * dim + 1] = ss
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        seg = task_at(t)
+        if seg >= 0:
+            sd = ti.Vector([0.0] * dim)
+            sv = ti.Vector([0.0] * dim)
+            sc = 0.0
+            ss = 0.0
+            for k in range(seg * length, ti.min(n, (seg + 1) * length)):
+                e = k
+                if ti.static(by_agent):
+                    e = order[slot_of[k]]
+                d = load_vec(dirs, e, dim)
+                c = speed_coefficient(phi[e], alpha, tol, mode)
+                sd += d
+                sv += c * d
+                sc += c
+                ss += c * d.norm()
+            for a in ti.static(range(dim)):
+                partial[seg, a] = sd[a]
+                partial[seg, dim + a] = sv[a]
+            partial[seg, 2 * dim] = sc
+            partial[seg, 2 * dim + 1] = ss
 
 
 @ti.kernel

@@ -48,6 +48,7 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.fastmath import cos_sin, sin_cos
 from tflock.field import UNIT_VECTORS
@@ -506,25 +507,27 @@ def _quantifier_blocks(n: ti.i32, c: ti.types.ndarray(), va_x: float, va_y: floa
                        f: ti.types.ndarray(), rule: ti.types.ndarray(), partial: ti.types.ndarray()):
     """Per block of agents: sum cos Theta, sin Theta, distance to the VA, inside, aligned, speed, separation, and
     agents outside the desired formation (storage order: deterministic block sums)."""
-    for blk in range(partial.shape[0]):
-        va = ti.Vector([va_x, va_y])
-        acc = ti.Vector([0.0] * 8)
-        for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-            p = load_vec(pos, e, 2)
-            d = displacement(va, p, c[WORLD], PERIODIC)  # VA -> agent
-            dist = d.norm()
-            th = f[THETA, e]
-            inside = d.norm_sqr() <= c[VAIR2]
-            acc[0] += ti.select(dist > 0, d[0] / dist, 1.0)  # cos Theta, Theta = atan2(0, 0) = 0 at the VA
-            acc[1] += ti.select(dist > 0, d[1] / dist, 0.0)
-            acc[2] += dist
-            acc[3] += ti.select(inside, 1.0, 0.0)
-            acc[4] += ti.select(ti.abs(wrap_pi(c[VA_HEADING] - th)) < c[BETA], 1.0, 0.0)
-            acc[5] += f[SPEED, e]
-            acc[6] += ti.select(rule[e] == SEPARATION, 1.0, 0.0)  # a count, exact whatever the order
-            acc[7] += ti.select(df_holds(p, th, f[SPEED, e], va, c), 0.0, 1.0)
-        for k in ti.static(range(8)):
-            partial[blk, k] = acc[k]
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            va = ti.Vector([va_x, va_y])
+            acc = ti.Vector([0.0] * 8)
+            for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+                p = load_vec(pos, e, 2)
+                d = displacement(va, p, c[WORLD], PERIODIC)  # VA -> agent
+                dist = d.norm()
+                th = f[THETA, e]
+                inside = d.norm_sqr() <= c[VAIR2]
+                acc[0] += ti.select(dist > 0, d[0] / dist, 1.0)  # cos Theta, Theta = atan2(0, 0) = 0 at the VA
+                acc[1] += ti.select(dist > 0, d[1] / dist, 0.0)
+                acc[2] += dist
+                acc[3] += ti.select(inside, 1.0, 0.0)
+                acc[4] += ti.select(ti.abs(wrap_pi(c[VA_HEADING] - th)) < c[BETA], 1.0, 0.0)
+                acc[5] += f[SPEED, e]
+                acc[6] += ti.select(rule[e] == SEPARATION, 1.0, 0.0)  # a count, exact whatever the order
+                acc[7] += ti.select(df_holds(p, th, f[SPEED, e], va, c), 0.0, 1.0)
+            for k in ti.static(range(8)):
+                partial[blk, k] = acc[k]
 
 
 @ti.kernel

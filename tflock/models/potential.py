@@ -121,20 +121,22 @@ def _block_partials(shape: tuple[int, int], dtype) -> ti.Ndarray:
 def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), partial: ti.types.ndarray()):
     """For each block of BLOCK agents: every velocity component's max (partial[b, a]) and min (partial[b, dim + a]),
     and the sum of |v_i|^2 (partial[b, 2 dim]); the blocks are reduced in NumPy, the same whatever the threads."""
-    for blk in range(partial.shape[0]):
-        lo = blk * BLOCK
-        hi = ti.min(n, lo + BLOCK)
-        squares = 0.0
-        for a in ti.static(range(dim)):
-            big = vel[a, lo]
-            small = vel[a, lo]
-            for i in range(lo, hi):
-                big = ti.max(big, vel[a, i])
-                small = ti.min(small, vel[a, i])
-                squares += vel[a, i] * vel[a, i]
-            partial[blk, a] = big
-            partial[blk, dim + a] = small
-        partial[blk, 2 * dim] = squares
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            lo = blk * BLOCK
+            hi = ti.min(n, lo + BLOCK)
+            squares = 0.0
+            for a in ti.static(range(dim)):
+                big = vel[a, lo]
+                small = vel[a, lo]
+                for i in range(lo, hi):
+                    big = ti.max(big, vel[a, i])
+                    small = ti.min(small, vel[a, i])
+                    squares += vel[a, i] * vel[a, i]
+                partial[blk, a] = big
+                partial[blk, dim + a] = small
+            partial[blk, 2 * dim] = squares
 
 
 #: columns of :func:`_velocity_stats`' partials: sums of v (dim), |v|, |v|^2, v / |v| (dim), |v - mean|, then the
@@ -149,45 +151,47 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
     """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
     headings of the velocities; with `with_mismatch`, only |v_i - centre| (centre: the mean velocity, from a first
     launch whose columns it leaves as they are). The blocks are added in NumPy: the same whatever the threads."""
-    for blk in range(partial.shape[0]):
-        lo = blk * BLOCK
-        hi = ti.min(n, lo + BLOCK)
-        total = ti.Vector([0.0] * dim, dt=ti.f64)
-        unit = ti.Vector([0.0] * dim, dt=ti.f64)
-        speeds = ti.cast(0.0, ti.f64)
-        squares = ti.cast(0.0, ti.f64)
-        gaps = ti.cast(0.0, ti.f64)
-        fast = ti.cast(0.0, ti.f64)
-        slow = ti.cast(math.inf, ti.f64)
-        widest = ti.cast(0.0, ti.f64)
-        c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
-        for i in range(lo, hi):
-            v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            lo = blk * BLOCK
+            hi = ti.min(n, lo + BLOCK)
+            total = ti.Vector([0.0] * dim, dt=ti.f64)
+            unit = ti.Vector([0.0] * dim, dt=ti.f64)
+            speeds = ti.cast(0.0, ti.f64)
+            squares = ti.cast(0.0, ti.f64)
+            gaps = ti.cast(0.0, ti.f64)
+            fast = ti.cast(0.0, ti.f64)
+            slow = ti.cast(math.inf, ti.f64)
+            widest = ti.cast(0.0, ti.f64)
+            c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
+            for i in range(lo, hi):
+                v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
+                if ti.static(with_mismatch):
+                    gap = (v - c).norm()
+                    gaps += gap
+                    widest = ti.max(widest, gap)
+                else:
+                    sq = v.norm_sqr()
+                    speed = ti.sqrt(sq)
+                    total += v
+                    squares += sq
+                    speeds += speed
+                    if speed > 0:
+                        unit += v / speed
+                    fast = ti.max(fast, speed)
+                    slow = ti.min(slow, speed)
             if ti.static(with_mismatch):
-                gap = (v - c).norm()
-                gaps += gap
-                widest = ti.max(widest, gap)
+                partial[blk, 2 * dim + 2] = gaps
+                partial[blk, 2 * dim + 5] = widest
             else:
-                sq = v.norm_sqr()
-                speed = ti.sqrt(sq)
-                total += v
-                squares += sq
-                speeds += speed
-                if speed > 0:
-                    unit += v / speed
-                fast = ti.max(fast, speed)
-                slow = ti.min(slow, speed)
-        if ti.static(with_mismatch):
-            partial[blk, 2 * dim + 2] = gaps
-            partial[blk, 2 * dim + 5] = widest
-        else:
-            for a in ti.static(range(dim)):
-                partial[blk, a] = total[a]
-                partial[blk, dim + 2 + a] = unit[a]
-            partial[blk, dim] = speeds
-            partial[blk, dim + 1] = squares
-            partial[blk, 2 * dim + 3] = fast
-            partial[blk, 2 * dim + 4] = slow
+                for a in ti.static(range(dim)):
+                    partial[blk, a] = total[a]
+                    partial[blk, dim + 2 + a] = unit[a]
+                partial[blk, dim] = speeds
+                partial[blk, dim + 1] = squares
+                partial[blk, 2 * dim + 3] = fast
+                partial[blk, 2 * dim + 4] = slow
 
 
 @ti.func

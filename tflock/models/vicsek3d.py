@@ -27,6 +27,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.config import VicsekParams
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.field import UNIT_VECTORS
 from tflock.frame import Frame, WorldSpec, arrow_length
@@ -138,12 +139,14 @@ def _step(t: ti.i32, seed: ti.u32, n: ti.i32, per_replica: ti.i32, radius: float
 @ti.kernel
 def _direction_sums(n: ti.i32, dirs: ti.types.ndarray(), partial: ti.types.ndarray()):
     """Sum of the directions over fixed blocks of elements (deterministic, whatever the thread count)."""
-    for blk in range(partial.shape[0]):
-        acc = ti.Vector([0.0, 0.0, 0.0])
-        for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-            acc += load_vec(dirs, e, 3)
-        for a in ti.static(range(3)):
-            partial[blk, a] = acc[a]
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            acc = ti.Vector([0.0, 0.0, 0.0])
+            for e in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
+                acc += load_vec(dirs, e, 3)
+            for a in ti.static(range(3)):
+                partial[blk, a] = acc[a]
 
 
 @ti.kernel
