@@ -183,9 +183,9 @@ def _host_bins(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
 def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, box: float, m: int,
                counts: ti.Ndarray | None = None) -> np.ndarray:
     """Agents in each of the m^d boxes of side box / m, per replica: (replicas, m, ..., m) ints, the first box axis
-    the last coordinate (row-major). `pos` (d, n) and `ids` in any arrangement of the agents. `counts`: an i32
-    ndarray (max(:func:`count_parts`, 1), replicas, m^d) to count in (a new one when None: making one costs about a
-    millisecond)."""
+    the last coordinate (row-major). `pos` (d, n) and `ids` in any arrangement of the agents. `counts`: i32 tables
+    (parts, replicas, m^d) to count in, one part per CPU thread (:func:`count_parts`) or any number (a new one when
+    None: making one costs about a millisecond)."""
     dim, n = pos.shape
     host = _host_bins(pos, ids, per_replica, replicas, m, m / box, None)
     if host is not None:
@@ -193,6 +193,8 @@ def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
     parts = count_parts()
     if counts is None:
         counts = _tables(parts, replicas, m**dim)
+    elif parts:  # the tables given
+        parts = counts.shape[0]
     counts.fill(0)
     _box_counts(n, per_replica, m, m / box, dim, parts, replicas > 1, pos, ids, counts)
     return _summed(counts).reshape((replicas,) + (m,) * dim)
@@ -201,8 +203,8 @@ def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
 def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Sequence[int], box: float,
                  bins: int, buffers: tuple[ti.Ndarray, ti.Ndarray] | None = None) -> np.ndarray:
     """Agents in each of `bins` slabs of width box / bins across axis ``axes[r]``, per replica r: (replicas, bins).
-    `buffers`: i32 ndarrays (replicas,) for the axes and (max(:func:`count_parts`, 1), replicas, bins) to count in
-    (new ones when None)."""
+    `buffers`: i32 ndarrays (replicas,) for the axes and (parts, replicas, bins) to count in, as `counts` of
+    :func:`box_counts` (new ones when None)."""
     n = pos.shape[1]
     replicas = len(axes)
     host = _host_bins(pos, ids, per_replica, replicas, bins, bins / box, axes)
@@ -212,6 +214,8 @@ def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Seque
     if buffers is None:
         buffers = (ti.ndarray(ti.i32, replicas), _tables(parts, replicas, bins))
     axis, hist = buffers
+    if parts:  # the tables given
+        parts = hist.shape[0]
     axis.from_numpy(np.asarray(axes, dtype=np.int32))
     hist.fill(0)
     _axis_profile(n, per_replica, bins, bins / box, parts, replicas > 1, pos, ids, axis, hist)
