@@ -345,6 +345,31 @@ def _window_wraps(nc: ti.i32, cell_size: float, box: float, start: ti.types.ndar
             out[b] = ti.select(window_run_wraps(row, x0, x1, nc, cell_size, box, bounds, anchor), 1, 0)
 
 
+def test_runs_are_the_same_however_the_rows_are_spread_over_the_threads(engine):
+    """The runs' kernel takes a row a task at any stride (tflock.cpu_tasks.spread_shift): the same runs at every
+    one, and the stride fills SPREAD_ITERATIONS iterations without passing TASK_STRIDE."""
+    import taichi as ti
+
+    from tflock.cpu_tasks import SPREAD_ITERATIONS, TASK_STRIDE, spread_shift
+    from tflock.neighbors import _runs
+
+    assert spread_shift(1 << 20) == 0 and spread_shift(1) == TASK_STRIDE.bit_length() - 1
+    assert (707 << spread_shift(707)) >= SPREAD_ITERATIONS > (707 << (spread_shift(707) - 1))
+    rng = np.random.default_rng(5)
+    x = rng.random((3000, 2)) * 60.0
+    x[:, 1] *= 0.5  # the upper rows hold no agent
+    model = model_at(engine, x, "periodic", 60.0, 1.0)
+    model.set_state({"x": x, "theta": rng.random(len(x)) * 2 * np.pi}, 0)
+    model._ensure_grid()
+    grid, g = model.grid, model.grid.geometry
+    rows = g.total_buckets // g.cells_per_side
+    expected = grid.runs().to_numpy()
+    for shift in (0, 3, spread_shift(rows), 10):
+        run_end = ti.ndarray(ti.i32, expected.shape)
+        _runs(rows, g.cells_per_side, shift, grid.start, run_end)
+        assert np.array_equal(run_end.to_numpy(), expected), shift
+
+
 @pytest.mark.parametrize("where", ["middle", "below the upper edges", "astride the corner"])
 def test_window_runs_skip_the_minimum_image_only_where_it_is_the_plain_difference(engine, where):
     """A run of a window grid that takes plain differences (window_run_wraps false) has every pair of its agents

@@ -11,13 +11,34 @@ task in a block of its own, and the blocks go to the threads as they come free::
         if j >= 0:
             ...  # task j
 
-The idle iterations cost about a nanosecond each.
+The idle iterations cost about a nanosecond each. A loop over many light tasks (the rows of a grid) takes a stride
+of its own, :func:`spread_shift`, just wide enough that its tasks fill SPREAD_ITERATIONS iterations: enough blocks
+to share out evenly, few idle iterations.
 """
 
 import taichi as ti
 
 #: iterations of the top-level loop per task: at least the largest block Taichi hands a thread
 TASK_STRIDE = 1024
+
+
+#: iterations a loop over light tasks is spread to (:func:`spread_shift`): 64 of Taichi's blocks of 512
+SPREAD_ITERATIONS = 64 * 512
+
+
+def spread_shift(tasks: int) -> int:
+    """log2 of the stride that spreads `tasks` tasks over at least SPREAD_ITERATIONS iterations (0 when they fill
+    them already, at most TASK_STRIDE's); see :func:`spread_task`."""
+    shift = 0
+    while (tasks << shift) < SPREAD_ITERATIONS and (1 << shift) < TASK_STRIDE:
+        shift += 1
+    return shift
+
+
+@ti.func
+def spread_task(t, shift):
+    """The task that iteration t of a loop over ``tasks << shift`` iterations runs, or -1 for none."""
+    return ti.select(t & ((1 << shift) - 1) == 0, t >> shift, -1)
 
 
 @ti.func

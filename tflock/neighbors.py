@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from tflock.cpu_tasks import TASK_STRIDE, task_at
+from tflock.cpu_tasks import TASK_STRIDE, spread_shift, spread_task, task_at
 from tflock.engine import current_engine, host_lanes
 from tflock.space import OPEN, PERIODIC, WINDOW, boundary_code, displacement
 
@@ -448,11 +448,17 @@ def cut_runs(rows, nc, start: ti.template(), run_end: ti.template()):
     """Cut every row of a box grid into runs of consecutive cells (see :meth:`CellGrid.runs`, which launches it as
     :func:`_runs`): one pass along each row, a cell joining the open run while the agents fit in the lanes."""
     for row in range(rows):
-        base = row * nc
-        if start[base] == start[base + nc]:  # an empty row (most of a sparse swarm's tiling): no run starts
-            for x in range(nc):
-                run_end[base + x] = -1
-            continue
+        cut_row(row, nc, start, run_end)
+
+
+@ti.func
+def cut_row(row, nc, start: ti.template(), run_end: ti.template()):
+    """:func:`cut_runs` for one row."""
+    base = row * nc
+    if start[base] == start[base + nc]:  # an empty row (most of a sparse swarm's tiling): no run starts
+        for x in range(nc):
+            run_end[base + x] = -1
+    else:
         first_row = row - row % nc  # row 0 of this row's replica
         begin = -1  # first cell of the open run (-1: none)
         agents = 0
@@ -482,8 +488,12 @@ def cut_runs(rows, nc, start: ti.template(), run_end: ti.template()):
 
 
 @ti.kernel
-def _runs(rows: ti.i32, nc: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
-    cut_runs(rows, nc, start, run_end)
+def _runs(rows: ti.i32, nc: ti.i32, shift: ti.i32, start: ti.types.ndarray(), run_end: ti.types.ndarray()):
+    """:func:`cut_runs`, a row a task spread over the threads (tflock.cpu_tasks.spread_shift)."""
+    for t in range(rows << shift):
+        row = spread_task(t, shift)
+        if row >= 0:
+            cut_row(row, nc, start, run_end)
 
 
 @ti.func
@@ -761,7 +771,8 @@ class CellGrid:
         if g.boundary == OPEN:
             raise ValueError("runs need a box or bounded grid (this build hashed its cells)")
         if self._runs_build != self.builds:
-            _runs(g.total_buckets // g.cells_per_side, g.cells_per_side, self.start, self.run_buffer())
+            rows = g.total_buckets // g.cells_per_side
+            _runs(rows, g.cells_per_side, spread_shift(rows), self.start, self.run_buffer())
             self._runs_build = self.builds
         return self.run_end
 
