@@ -500,6 +500,40 @@ def test_components_match_brute_force(engine, boundary, dim, kind, dense):
         assert len(sizes) > 20
 
 
+@pytest.mark.parametrize("boundary,dim", [("periodic", 2), ("reflecting", 2), ("open", 2), ("periodic", 3)])
+def test_degrees_counted_in_the_pairs_pass_are_the_degree_pass_counts(engine, monkeypatch, boundary, dim):
+    """Once a call has seen a sparse swarm, the next one counts the degrees in the pairs pass's walk
+    (Components.compute_with_degrees): the same degrees, clusters, roots and sizes as the degree pass and the
+    pairs pass apart, and the brute-force graph's; a dense flock keeps the two passes."""
+    from tflock.components import Components
+
+    rng = np.random.default_rng(dim * 3 + len(boundary))
+    combined = []
+    original = Components.compute_with_degrees
+    monkeypatch.setattr(Components, "compute_with_degrees",
+                        lambda self, *a: combined.append(1) or original(self, *a))
+    for kind, box in (("many clusters", 40.0), ("one flock", 12.0)):
+        x = swarm(kind, 600, dim, box, 1.0, rng, boundary).astype(engine.real)
+        if boundary == "open":
+            x -= np.asarray(box / 2, dtype=engine.real)
+        for strict in (False, True):
+            graph = NeighbourGraph(built_grid(engine, x, boundary, box, 1.0), strict)
+            first = graph.compute(1.0, box)
+            degree, roots = graph.degree.to_numpy().copy(), [a.tolist() for a in graph._roots()]
+            sparse = graph._components.takes_pairs()
+            assert sparse == (kind == "many clusters" or dim == 3)  # a 2D flock is dense: sub-cells
+            before = len(combined)
+            again = graph.compute(1.0, box)
+            assert len(combined) == before + sparse  # sparse: one walk; dense: two passes
+            assert again == first
+            assert np.array_equal(graph.degree.to_numpy(), degree)
+            assert [a.tolist() for a in graph._roots()] == roots
+            if not strict:
+                want = ref.graph_metrics(x, 1.0, boundary, box)
+                assert (again["clusters"], again["max_neighbors"]) == (want["clusters"], want["max_neighbors"])
+                assert again["mean_neighbors"] == pytest.approx(want["mean_neighbors"])
+
+
 def test_small_dense_swarms_take_the_pairs_pass(engine):
     """A flock dense enough for the sub-cell pass but of at most SUBCELL_MIN_AGENTS agents is joined by the pairs
     pass (the sub-cell grid's launches cost more there), with the brute-force components and counts."""

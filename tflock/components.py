@@ -295,6 +295,44 @@ def pair_union(n, r2, box, nc, n_buckets, strict: ti.template(), layout: ti.temp
         pairs[s] = count
 
 
+@ti.kernel
+def _pair_union_degrees(n: ti.i32, radius: float, r2: float, box: float, nc: ti.i32, n_buckets: ti.i32,
+                        strict: ti.template(), layout: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
+                        mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
+                        id_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), pairs: ti.types.ndarray(),
+                        degree: ti.types.ndarray()):
+    """:func:`pair_union` and each agent's degree (tflock.metrics' ``_count_degrees``: its neighbours within
+    ``radius``, itself excluded, agent order) in one pass over every slot's whole stencil, where the two passes
+    each walked it: the same unions in the same order (the neighbours at smaller slots, within `r2`), and the
+    same counts."""
+    for s in range(n):
+        parent[s] = s
+    for s in range(n):
+        p = load_vec(pos_sorted, s, dim)
+        c = load_cell(coords_sorted, s, dim)
+        root = s
+        count = 0
+        neighbours = 0
+        for o in range(ti.static(span_count(layout, dim))):
+            lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
+            for k in range(begin, end):
+                d2 = displacement(p, load_vec(pos_sorted, k, dim), box, layout).norm_sqr()
+                same = 1
+                if check != 0:
+                    same = same_cell(coords_sorted, k, cell, layout, dim)
+                w = ti.select(d2 <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
+                if ti.static(layout == OPEN):  # as the degree pass tests it
+                    w *= same
+                neighbours += w
+                if k < s and near(d2, r2, strict) and same == 1:
+                    count += 1
+                    if parent[k] != root:
+                        root = union(parent, root, k)
+        pairs[s] = count
+        degree[id_sorted[s]] = neighbours
+
+
 #: slots per task of :func:`_pair_sizes`: a run of slots with one root adds its length at once
 SIZE_CHUNK = 256
 
@@ -370,14 +408,28 @@ class Components:
         """The number of components and the largest one's size, for the model grid's current build."""
         if mean_degree is not None:
             self.dense = self._occupancy(mean_degree) >= DENSE_SUBCELL
-        if self.dense and self.model_grid.n > SUBCELL_MIN_AGENTS:
+        if not self.takes_pairs():
             return self._by_subcells()
         return self._by_pairs()
 
-    def _by_pairs(self) -> tuple[int, int]:
+    def takes_pairs(self) -> bool:
+        """Whether :meth:`compute` without a hint takes the pairs pass (else the sub-cells')."""
+        return not (self.dense and self.model_grid.n > SUBCELL_MIN_AGENTS)
+
+    def compute_with_degrees(self, radius: float, degree: ti.Ndarray) -> tuple[int, int]:
+        """The pairs pass (whatever the density) that also counts each agent's neighbours within `radius` into
+        `degree` (agent order, itself excluded), as tflock.metrics' degree pass counts them."""
+        return self._by_pairs(radius, degree)
+
+    def _by_pairs(self, degree_radius: float | None = None, degree: ti.Ndarray | None = None) -> tuple[int, int]:
         grid, g = self.model_grid, self.model_grid.geometry
-        _pair_union(grid.n, self.radius**2, grid.box, g.cells_per_side, g.n_buckets, self.strict, g.boundary, g.dim,
-                    grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent, self.pairs)
+        if degree is None:
+            _pair_union(grid.n, self.radius**2, grid.box, g.cells_per_side, g.n_buckets, self.strict, g.boundary,
+                        g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted, self.parent, self.pairs)
+        else:
+            _pair_union_degrees(grid.n, degree_radius, self.radius**2, grid.box, g.cells_per_side, g.n_buckets,
+                                self.strict, g.boundary, g.dim, grid.start, grid.mixed, grid.pos_sorted,
+                                grid.coords_sorted, grid.id_sorted, self.parent, self.pairs, degree)
         _pair_sizes(grid.n, self.parent, self.size, self.result)
         clusters, largest, _ = (int(v) for v in self.result.to_numpy())
         self.slot_grid = grid

@@ -209,6 +209,7 @@ class NeighbourGraph:
         n = grid.n
         self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
         self._components: Components | None = None  # allocated on first use
+        self._sparse_seen = False  # the last call's components took the pairs pass, and the next would
         # on Vulkan a lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
@@ -225,6 +226,13 @@ class NeighbourGraph:
         _degrees(grid.n, radius, box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start, grid.mixed,
                  grid.pos_sorted, grid.coords_sorted, grid.id_sorted, self.degree)
         return self.degree
+
+    def _pairs_with_degrees(self, radius: float, box: float) -> bool:
+        """Whether :meth:`compute` takes the degrees and the components in one pairs pass: the last call took the
+        pairs pass and would again (its density, the degrees known only afterwards), by union-find, in the grid's
+        box."""
+        return (self._sparse_seen and not self.in_rounds and self._components is not None
+                and self._components.radius == radius and box == self.grid.box)
 
     def _found(self, radius: float) -> Components:
         if self._components is None or self._components.radius != radius:
@@ -282,11 +290,17 @@ class NeighbourGraph:
             clusters, largest = self._small(radius, box)
             degree = self.degree
             mean_degree = mean(degree, n)
+        elif degree is None and self._pairs_with_degrees(radius, box):
+            # a sparse swarm (the last call's, with the pairs pass next): its degrees from the same walk
+            clusters, largest = self._found(radius).compute_with_degrees(radius, self.degree)
+            degree = self.degree
+            mean_degree = mean(degree, n)
         else:
             if degree is None:
                 degree = self.degrees(radius, box)
             mean_degree = mean(degree, n)
             clusters, largest = self.components(radius, box, mean_degree)
+        self._sparse_seen = self._components is not None and self._components.takes_pairs()
         return {
             "clusters": float(clusters),
             "largest_cluster": largest / n,
