@@ -18,9 +18,10 @@ to share out evenly, few idle iterations.
 
 import taichi as ti
 
-#: iterations of the top-level loop per task: at least the largest block Taichi hands a thread
-TASK_STRIDE = 1024
-
+#: iterations of the top-level loop per task, TASK_STRIDE = 2^TASK_SHIFT: at least the largest block Taichi hands
+#: a thread
+TASK_SHIFT = 10
+TASK_STRIDE = 1 << TASK_SHIFT
 
 #: iterations a loop over light tasks is spread to (:func:`spread_shift`): 64 of Taichi's blocks of 512
 SPREAD_ITERATIONS = 64 * 512
@@ -30,7 +31,7 @@ def spread_shift(tasks: int) -> int:
     """log2 of the stride that spreads `tasks` tasks over at least SPREAD_ITERATIONS iterations (0 when they fill
     them already, at most TASK_STRIDE's); see :func:`spread_task`."""
     shift = 0
-    while (tasks << shift) < SPREAD_ITERATIONS and (1 << shift) < TASK_STRIDE:
+    while (tasks << shift) < SPREAD_ITERATIONS and shift < TASK_SHIFT:
         shift += 1
     return shift
 
@@ -44,4 +45,4 @@ def spread_task(t, shift):
 @ti.func
 def task_at(t):
     """The task that iteration t of a loop over ``tasks * TASK_STRIDE`` iterations runs, or -1 for none."""
-    return ti.select(t % TASK_STRIDE == 0, t // TASK_STRIDE, -1)
+    return spread_task(t, TASK_SHIFT)

@@ -209,7 +209,6 @@ class NeighbourGraph:
         n = grid.n
         self.degree = ti.ndarray(ti.i32, n)  # neighbours of each agent (agent order, itself excluded)
         self._components: Components | None = None  # allocated on first use
-        self._sparse_seen = False  # the last call's components took the pairs pass, and the next would
         # on Vulkan a lock-free union-find lost every union (clusters came out as lone agents; an atomic in its
         # loops is miscompiled by Taichi 1.7's SPIR-V backend): there the components come from rounds of labels
         engine = current_engine()
@@ -228,11 +227,10 @@ class NeighbourGraph:
         return self.degree
 
     def _pairs_with_degrees(self, radius: float, box: float) -> bool:
-        """Whether :meth:`compute` takes the degrees and the components in one pairs pass: the last call took the
-        pairs pass and would again (its density, the degrees known only afterwards), by union-find, in the grid's
-        box."""
-        return (self._sparse_seen and not self.in_rounds and self._components is not None
-                and self._components.radius == radius and box == self.grid.box)
+        """Whether :meth:`compute` takes the degrees and the components in one pairs pass: an earlier call found the
+        swarm sparse enough for it (the density is known only after the degrees), by union-find, in the grid's box."""
+        found = self._components  # None before the first call, and on Vulkan
+        return found is not None and found.radius == radius and found.takes_pairs() and box == self.grid.box
 
     def _found(self, radius: float) -> Components:
         if self._components is None or self._components.radius != radius:
@@ -300,7 +298,6 @@ class NeighbourGraph:
                 degree = self.degrees(radius, box)
             mean_degree = mean(degree, n)
             clusters, largest = self.components(radius, box, mean_degree)
-        self._sparse_seen = self._components is not None and self._components.takes_pairs()
         return {
             "clusters": float(clusters),
             "largest_cluster": largest / n,
