@@ -17,6 +17,7 @@ the rounds, and each run's step over its round's plain step.
 
 import argparse
 import importlib
+import inspect
 import json
 import statistics
 import subprocess
@@ -91,8 +92,11 @@ def main() -> None:
         old_components = old_graph.LaneComponents(grid, sim.engine.threads)
 
         def graph_pass(module, components):
+            kernel = module._neighbour_sums_graph
+            serial = (components.stripes()[0] == 1,) if "serial" in inspect.signature(kernel).parameters else ()
+
             def run() -> None:
-                module._neighbour_sums_graph(*components.stripes(), *args_pass, components.parent, components.size)
+                kernel(*components.stripes(), *args_pass, components.parent, components.size, *serial)
                 components.finish(p.radius, p.box, boundary)
             return run
 

@@ -288,3 +288,38 @@ def test_potential_small_swarm_grid_comes_from_the_steps_launch(engine, monkeypa
         m.setattr(potential, "FUSED_MAX_N", 0)
         expected = hosted.metrics()
     assert launched.metrics() == expected
+
+
+ONE_THREAD = [
+    ("vicsek", {"n": 60, "box": 6.0, "boundary": "open", "noise": 0.3}),  # grid builds of the general step
+    ("vicsek", {"n": 100, "box": 7.0, "noise": 0.4}),  # the lane-wise metrics pass, one stripe
+    ("potential", {"n": 60, "box": 8.0}),  # the switching graph's metrics pass
+    ("potential", {"n": 10, "box": 5.0, "topology": "fixed", "graph": "random"}),  # energies, nearest distances
+]
+
+
+@pytest.mark.parametrize("model,params", ONE_THREAD)
+def test_small_swarm_passes_on_one_thread_match_the_thread_pool(engine, make_sim, monkeypatch, model, params):
+    """A small swarm's passes run serialized on the calling thread (tflock.cpu_tasks.one_thread): the same states,
+    metrics and frame rows, bit for bit, as with every pass handed to the thread pool."""
+    import tflock.models.potential as potential
+    import tflock.models.vicsek as vicsek
+    import tflock.neighbors as neighbors
+
+    if engine.arch != "cpu":
+        pytest.skip("the serialized passes are the CPU's")
+    runs, asked = [], []
+    for pooled in (False, True):
+        with monkeypatch.context() as m:
+            if pooled:
+                for module in (neighbors, vicsek, potential):
+                    m.setattr(module, "one_thread", lambda *args: bool(asked.append(args)))
+            sim = make_sim(model=model, params=params, steps=30, seed=4, log={"metrics_every": 1})
+            sim.run()
+            frame = sim.model.frame(np.arange(params["n"]), 100, 0)
+            runs.append((sim, frame))
+    (serial, a), (pooled, b) = runs
+    assert asked  # the pooled run did take the thread pool's passes
+    assert_same_run(serial, pooled)
+    for name in ("positions", "directions", "colors", "edges"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name

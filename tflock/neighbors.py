@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from tflock.cpu_tasks import TASK_STRIDE, spread_shift, spread_task, task_at
+from tflock.cpu_tasks import TASK_STRIDE, one_thread, spread_shift, spread_task, task_at
 from tflock.engine import current_engine, host_lanes
 from tflock.space import OPEN, PERIODIC, WINDOW, boundary_code, displacement
 
@@ -365,10 +365,18 @@ def _build(pos: ti.types.ndarray(), ids: ti.types.ndarray(), n: ti.i32, per_repl
            start: ti.types.ndarray(), order: ti.types.ndarray(), slot_of: ti.types.ndarray(),
            pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
            mixed: ti.types.ndarray(), block_start: ti.types.ndarray(), bounds: ti.types.ndarray(),
-           anchor: ti.types.ndarray(), by_rank: ti.template()):
-    build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords, bucket,
-               counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed, block_start, bounds,
-               anchor, by_rank)
+           anchor: ti.types.ndarray(), by_rank: ti.template(), serial: ti.template()):
+    """:func:`build_grid`; with `serial` on the calling thread (a small swarm: :func:`tflock.cpu_tasks.one_thread`)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords,
+                       bucket, counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed,
+                       block_start, bounds, anchor, by_rank)
+    else:
+        build_grid(pos, ids, n, per_replica, box, cell_size, nc, n_buckets, total_buckets, boundary, dim, coords,
+                   bucket, counts, start, order, slot_of, pos_sorted, coords_sorted, id_sorted, mixed, block_start,
+                   bounds, anchor, by_rank)
 
 
 @ti.func
@@ -674,7 +682,7 @@ class CellGrid:
         """Sort agents by cell: `pos` is a component-major (dim, n) ndarray, `ids` the agent at each element."""
         if self.bounded:
             self.geometry = self._layout(pos)
-        _build(pos, ids, *self.build_arguments())
+        _build(pos, ids, *self.build_arguments(), one_thread(self.n))
         self.builds += 1
 
     def build_arguments(self) -> tuple:

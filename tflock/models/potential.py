@@ -33,7 +33,7 @@ from collections.abc import Mapping
 import numpy as np
 import taichi as ti
 
-from tflock.cpu_tasks import TASK_STRIDE, task_at
+from tflock.cpu_tasks import TASK_STRIDE, one_thread, task_at
 from tflock.engine import EngineInfo
 from tflock.field import VECTORS
 from tflock.frame import ColorLegend, Frame, WorldSpec, arrow_length, color_table, look_up
@@ -458,11 +458,13 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
                      layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
                      id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
                      accel: ti.types.ndarray(), valency: ti.types.ndarray(), energy: ti.types.ndarray(),
-                     nearest: ti.types.ndarray()):
+                     nearest: ti.types.ndarray(), serial: ti.template()):
     """The next step's neighbour pass, run for a state whose metrics are taken (as :func:`_step_lanes` takes the
     agents): each agent's u_i (eq. 3) into ``accel`` (slot order; :func:`_move` then makes the step, bit for bit as
     :func:`_step_lanes`), and per agent (agent order) its valency |N_i|, half its saturated potential
-    1/2 sum (V - V(R)) and its nearest distance, capped at R."""
+    1/2 sum (V - V(R)) and its nearest distance, capped at R. `serial`: on the calling thread (a small swarm,
+    :func:`tflock.cpu_tasks.one_thread`)."""
+    ti.loop_config(serialize=serial)
     for b in range(total_buckets):
         inv_r2cut = 1.0 / ti.cast(r2cut, ti.f64)
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
@@ -666,8 +668,11 @@ def _lane_steps(steps: ti.i32, ready: ti.i32, side0: ti.i32, max_side: ti.i32, d
 
 @ti.kernel
 def _csr_energy(n: ti.i32, d2: float, dim: ti.template(), offsets: ti.types.ndarray(),
-                neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), energy: ti.types.ndarray()):
-    """Half of each agent's potential V_i = sum_{j in N_i} V(|r_ij|) (eq. 4), agent order."""
+                neighbours: ti.types.ndarray(), pos: ti.types.ndarray(), energy: ti.types.ndarray(),
+                serial: ti.template()):
+    """Half of each agent's potential V_i = sum_{j in N_i} V(|r_ij|) (eq. 4), agent order; `serial` as in
+    :func:`_step_sums_lanes`."""
+    ti.loop_config(serialize=serial)
     for i in range(n):
         p = load_vec(pos, i, dim)
         pot = 0.0
@@ -678,8 +683,11 @@ def _csr_energy(n: ti.i32, d2: float, dim: ti.template(), offsets: ti.types.ndar
 
 
 @ti.kernel
-def _exact_nearest(n: ti.i32, dim: ti.template(), pos: ti.types.ndarray(), nearest: ti.types.ndarray()):
-    """Distance from each element's agent to its nearest other agent, all pairs (small n)."""
+def _exact_nearest(n: ti.i32, dim: ti.template(), pos: ti.types.ndarray(), nearest: ti.types.ndarray(),
+                   serial: ti.template()):
+    """Distance from each element's agent to its nearest other agent, all pairs (small n); `serial` as in
+    :func:`_step_sums_lanes`."""
+    ti.loop_config(serialize=serial)
     for e in range(n):
         p = load_vec(pos, e, dim)
         near = math.inf
@@ -984,7 +992,8 @@ class Potential(GridModel):
                 self._grid_pairs(self.valency, self.energy)
         else:
             p = self.params
-            _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy)
+            _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy,
+                        one_thread(p.n))
         self._pairs_step = (self.step_index,)
 
     def _lane_pairs(self) -> None:
@@ -1015,7 +1024,7 @@ class Potential(GridModel):
         g = grid.geometry
         _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start,
                          grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
-                         self.valency, self.energy, self.nearest)
+                         self.valency, self.energy, self.nearest, one_thread(grid.n))
         self._next_step.summed = (self.step_index, grid.builds)
 
     def lyapunov(self) -> Lyapunov:
@@ -1088,7 +1097,7 @@ class Potential(GridModel):
                 self._ensure_grid()
                 self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
-            _exact_nearest(n, self.dim, self.pos, self.nearest)
+            _exact_nearest(n, self.dim, self.pos, self.nearest, one_thread(n))
         if self.switching:
             valency = host_array(self.valency)
             found = self._components_found

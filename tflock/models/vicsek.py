@@ -39,7 +39,7 @@ import numpy as np
 import taichi as ti
 
 from tflock.config import VicsekParams
-from tflock.cpu_tasks import TASK_STRIDE, task_at
+from tflock.cpu_tasks import TASK_STRIDE, one_thread, task_at
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, opaque_copy, sin_cos
 from tflock.field import ANGLES, UNIT_VECTORS
@@ -491,10 +491,12 @@ def _stencil_graph(begin, end, s_lo, i0, i1, px, py, th, acc_a, acc_b, count, la
 def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, radius: float,
                           box: float, rule: ti.template(), boundary: ti.template(), start: ti.types.ndarray(),
                           run_end: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), payload: ti.types.ndarray(),
-                          sums: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray()):
+                          sums: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray(),
+                          serial: ti.template()):
     """:func:`_neighbour_sums` for a state whose metrics are taken: the same sums, the count 1 + n_i for every rule
     (the neighbour counts), and the components of the R-graph in ``parent`` (stripes of layers, see
-    tflock.lane_graph; LaneComponents.finish completes them)."""
+    tflock.lane_graph; LaneComponents.finish completes them). `serial`: on the calling thread (one stripe)."""
+    ti.loop_config(serialize=serial)
     for t in range(n_stripes * TASK_STRIDE):  # a stripe a task (tflock.cpu_tasks)
         j = task_at(t)
         if j >= 0:
@@ -736,14 +738,21 @@ def _frame_rows(m: ti.i32, selected: ti.types.ndarray(), slot_of: ti.types.ndarr
 @ti.kernel
 def _drawn_rows(n: ti.i32, id_sorted: ti.types.ndarray(), order: ti.types.ndarray(), bits: ti.types.ndarray(),
                 word_rank: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), theta: ti.types.ndarray(),
-                updated: ti.types.ndarray(), drawn: ti.types.ndarray(), slot: ti.types.ndarray()):
+                updated: ti.types.ndarray(), drawn: ti.types.ndarray(), slot: ti.types.ndarray(),
+                serial: ti.template()):
     """Frame rows of the drawn agents (row r: the agent of rank r, see :func:`drawn_rank`): ``drawn[0]`` positions,
     ``drawn[1]`` heading vectors (cos, sin), ``drawn[2]`` (theta, 1 if updated), and their grid slots, by one pass
     over the grid's agents: sequential reads (the state is kept in the previous build's cell order, nearly the
     grid's), where looking each drawn agent up by id misses the cache every time. The lane-wise step writes these
     rows itself for a frame ``draw_next`` announced, at no measurable cost in its ``_update``, and
-    :func:`_serial_steps` after its last build, which saves this launch."""
-    _write_drawn_rows(n, id_sorted, order, bits, word_rank, pos_sorted, theta, updated, drawn, slot)
+    :func:`_serial_steps` after its last build, which saves this launch. `serial`: on the calling thread (a small
+    swarm, :func:`tflock.cpu_tasks.one_thread`)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _write_drawn_rows(n, id_sorted, order, bits, word_rank, pos_sorted, theta, updated, drawn, slot)
+    else:
+        _write_drawn_rows(n, id_sorted, order, bits, word_rank, pos_sorted, theta, updated, drawn, slot)
 
 
 @ti.func
@@ -1003,9 +1012,12 @@ class Vicsek(GridModel):
 
     def _ensure_grid(self) -> None:
         """The grid of the current positions; on the fused path with its runs and sorted headings, from one launch of
-        :func:`_lane_wise_steps` without steps."""
+        :func:`_lane_wise_steps` without steps, and on the serial path from one of :func:`_serial_steps` (a run then
+        loads one kernel for its builds and steps, not also the grid's own build)."""
         if self._grid_step != self.step_index and self._fused():
             self._fused_steps(0, 0.0)
+        elif self._grid_step != self.step_index and self._serial():
+            self._serial_steps(0, 0.0)
         super()._ensure_grid()
 
     def _ready(self) -> int:
@@ -1098,9 +1110,10 @@ class Vicsek(GridModel):
         if self._headed != (self.step_index, grid.builds):
             _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
         rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
-        _neighbour_sums_graph(*self.components.stripes(), g.cells_per_side, p.radius, p.box, rule, boundary,
-                              grid.start, grid.runs(), grid.pos_sorted, self.payload, self.sums,
-                              self.components.parent, self.components.size)
+        stripes = self.components.stripes()
+        _neighbour_sums_graph(*stripes, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(),
+                              grid.pos_sorted, self.payload, self.sums, self.components.parent,
+                              self.components.size, stripes[0] == 1 and one_thread(grid.n))
         self._summed = (self.step_index, grid.builds)
         radius = self.grid.real(p.radius)  # R^2 as the pass above squares it, in the run's precision
         clusters, largest = self.components.finish(float(radius * radius), p.box, boundary)
@@ -1146,7 +1159,7 @@ class Vicsek(GridModel):
             drawn = np.zeros((3, len(selected), 2), dtype=grid.real)
             if len(selected):
                 _drawn_rows(self.n_total, grid.id_sorted, grid.order, drawing.bits, drawing.word_rank,
-                            grid.pos_sorted, self.theta, self.updated, drawn, drawing.slot)
+                            grid.pos_sorted, self.theta, self.updated, drawn, drawing.slot, one_thread(self.n_total))
                 drawing.located()
         colors = angle_colors(drawn[2, :, 0])  # from the headings themselves: no atan2 of the directions
         if self.asynchronous:
