@@ -116,6 +116,30 @@ def test_stripes_do_not_change_the_partition(engine, monkeypatch, threads):
     assert_graph_metrics(model.metrics(), expected)
 
 
+@pytest.mark.parametrize("threads", [2, 7])
+def test_clusters_across_every_stripe(engine, monkeypatch, threads):
+    """Two zigzag lines along the slowest axis (across every layer, so every stripe edge), one of them closed
+    through the periodic wrap, among lone agents: the stripes' edge joins (parallel, lock-free) bring each line's
+    size to its root; the counts and the largest cluster are the reference's."""
+    monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
+    side = 40.0
+    ys = np.arange(0.0, side, 0.6)  # steps under R along y, through the wrap for the first line
+    first = [(5.0 + 0.3 * (k % 2), y) for k, y in enumerate(ys)]
+    second = [(25.0 + 0.3 * (k % 2), y) for k, y in enumerate(ys[:40])]  # 39 steps: it ends inside the box
+    lone = [(12.0 + 1.5 * i, 0.7 + 1.5 * j) for i in range(5) for j in range(26)] + \
+           [(31.0 + 1.5 * i, 0.7 + 1.5 * j) for i in range(5) for j in range(26)]
+    x = np.array(first + second + lone)
+    cfg = config(len(x), side)
+    model = Vicsek(cfg.params, cfg.seed, engine)
+    model.components = LaneComponents(model.grid, threads)
+    model.set_state({"x": x, "theta": np.zeros(len(x))}, 0)
+    assert model.components.stripes()[0] > 2
+    got = model.metrics()
+    assert got["clusters"] == 2 + len(lone)
+    assert got["largest_cluster"] == len(first) / len(x)
+    assert_graph_metrics(got, expected_graph(model))
+
+
 def test_roots_counted_on_the_host_and_by_the_kernel_agree(engine, monkeypatch):
     """A small swarm's components are counted in NumPy on the host memory of the pass's parents; the kernel's count
     (SMALL_SWARM_MAX = 0) gives the same numbers: many clusters, several stripes."""

@@ -42,46 +42,7 @@ from tflock.neighbors import (
 )
 from tflock.space import BOUNDARIES, OPEN, PERIODIC, displacement
 from tflock.taichi_host import host_array
-
-
-@ti.func
-def find_root(parent: ti.template(), x):
-    """Root of x, halving the path on the way (x's parent becomes its grandparent).
-
-    The halving write is an atomic_min to an ancestor in the same set, so it never loses a link: a concurrent
-    hook that it overrides is merged again by the hooking thread (see :func:`union`).
-    """
-    while parent[x] != x:
-        p = parent[x]
-        gp = parent[p]
-        if gp != p:
-            ti.atomic_min(parent[x], gp)
-        x = gp
-    return x
-
-
-@ti.func
-def union(parent: ti.template(), a, z):
-    """Merge the sets of a and z; returns the root the merged set had when the hook succeeded.
-
-    Lock-free: the larger root is hooked under the smaller value with atomic_min; if another thread changed
-    that parent meanwhile, the old parent is merged in its place, so no link is ever lost.
-    """
-    done = False
-    while not done:
-        a = find_root(parent, a)
-        z = find_root(parent, z)
-        if a == z:
-            done = True
-        else:
-            if a < z:
-                a, z = z, a
-            old = ti.atomic_min(parent[a], z)
-            if old == a:
-                done = True
-            else:
-                a = old
-    return z
+from tflock.union_find import find_root, union
 
 
 @ti.func

@@ -18,8 +18,9 @@ This phase writes only parents of its own stripe's slots, so it needs no atomics
 smaller slot, so each set's root is its smallest slot.
 
 Pairs whose agents lie in two stripes (neighbouring layers at a stripe's edge, and a periodic grid's wrap) are
-joined afterwards by :meth:`LaneComponents.finish` in one serial pass over the stripes' edge layers (a few per cent
-of the agents), which then counts the roots and takes the largest set's size (kept at each root by every join).
+joined afterwards by :meth:`LaneComponents.finish`, a pass over the stripes' edge layers (a few per cent of the
+agents) with the lock-free unions of :mod:`tflock.union_find`, the stripes in parallel; it then brings each merged
+set's size to its root, counts the roots and takes the largest set's size.
 The partition, and hence the cluster count and the largest cluster, do not depend on the thread count or the
 stripes.
 """
@@ -27,9 +28,11 @@ stripes.
 import numpy as np
 import taichi as ti
 
+from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.neighbors import LANES, CellGrid, load_cell, load_vec, span_agents, span_count, stencil_span
 from tflock.space import displacement
 from tflock.taichi_host import SMALL_SWARM_MAX, host_view, small_host_view
+from tflock.union_find import find_root, hook_union
 
 #: no candidate seen: the initial smallest label of a lane
 NO_LABEL = 2**31 - 1
@@ -199,32 +202,51 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2:
                    n_buckets: ti.i32, layout: ti.template(), metric: ti.template(), strict: ti.template(),
                    dim: ti.template(), start: ti.types.ndarray(), mixed: ti.types.ndarray(),
                    pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
-                   size: ti.types.ndarray()):
-    """Join the pairs within R (|r|^2 <= r2, or < r2 where `strict`) whose agents lie in two stripes, in one serial
-    pass. Cells are at least R wide, so such a pair joins the first layer of a stripe to the layer before it (the
-    previous stripe's last, or across a periodic wrap): the agents of each stripe's first layer are tested against
-    the stencil spans one layer back (the first third of :func:`stencil_span`'s spans, where the slowest axis steps
-    back)."""
-    ti.loop_config(serialize=True)
-    for j in range(n_stripes):
-        b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
-        for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
-            p = load_vec(pos_sorted, s, dim)
-            c = load_cell(coords_sorted, s, dim)
-            for o in range(ti.static(span_count(layout, dim) // 3)):
-                lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
-                begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
-                for k in range(begin, end):
-                    if k < s_lo or k >= s_hi:
-                        d2 = displacement(p, load_vec(pos_sorted, k, dim), box, metric).norm_sqr()
-                        near = d2 <= r2
-                        if ti.static(strict):
-                            near = d2 < r2
-                        if near:
-                            a = local_root(parent, s)
-                            z = local_root(parent, k)
-                            if a != z:
-                                _join(parent, size, a, z)
+                   size: ti.types.ndarray(), hooked: ti.types.ndarray(), hooks: ti.types.ndarray()):
+    """Join the pairs within R (|r|^2 <= r2, or < r2 where `strict`) whose agents lie in two stripes. Cells are at
+    least R wide, so such a pair joins the first layer of a stripe to the layer before it (the previous stripe's
+    last, or across a periodic wrap): the agents of each stripe's first layer are tested against the stencil spans
+    one layer back (the first third of :func:`stencil_span`'s spans, where the slowest axis steps back).
+
+    A stripe a task, all in parallel: two tasks may join the same sets, so the joins are the lock-free unions of
+    :mod:`tflock.union_find`, which list each root they hook under another in `hooked` (hooks[0] of them; the
+    caller sizes `hooked` for the stripes' edge layers, see :func:`edge_agents`). Then each listed root's set size
+    (from the stripes' own pass) is added to its final root's, so each set's size is at its root again."""
+    hooks[0] = 0
+    for t in range(n_stripes * TASK_STRIDE):  # a stripe a task (tflock.cpu_tasks)
+        j = task_at(t)
+        if j >= 0:
+            b_lo, b_hi, s_lo, s_hi = stripe_range(j, n_stripes, layers, layer_buckets, start)
+            for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
+                p = load_vec(pos_sorted, s, dim)
+                c = load_cell(coords_sorted, s, dim)
+                for o in range(ti.static(span_count(layout, dim) // 3)):
+                    lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
+                    begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
+                    for k in range(begin, end):
+                        if k < s_lo or k >= s_hi:
+                            d2 = displacement(p, load_vec(pos_sorted, k, dim), box, metric).norm_sqr()
+                            near = d2 <= r2
+                            if ti.static(strict):
+                                near = d2 < r2
+                            if near:
+                                root, _ = hook_union(parent, s, k)
+                                if root >= 0:
+                                    hooked[ti.atomic_add(hooks[0], 1)] = root
+    for e in range(hooks[0]):  # after every join: the listed roots' sizes to the roots of their merged sets
+        root = hooked[e]
+        ti.atomic_add(size[find_root(parent, root)], size[root])
+
+
+def edge_agents(start: np.ndarray, n_stripes: int, layers: int, layer_buckets: int) -> int:
+    """Agents in the stripes' edge layers (each stripe's first layer and the layer before it), from the grid's
+    bucket starts: at least the number of roots :func:`_cross_stripes` can hook, since each hook joins two sets of
+    such agents into one."""
+    firsts = (np.arange(n_stripes) * layers // n_stripes) * layer_buckets
+    counts = np.diff(start[: layers * layer_buckets + 1])
+    per_layer = np.add.reduceat(counts, np.arange(0, layers * layer_buckets, layer_buckets))
+    first_layers = firsts // layer_buckets
+    return int(per_layer[first_layers].sum() + per_layer[first_layers - 1].sum())
 
 
 @ti.func
@@ -257,6 +279,8 @@ class LaneComponents:
         self.parent = ti.ndarray(ti.i32, grid.n)
         self.size = ti.ndarray(ti.i32, grid.n)
         self.result = np.zeros(2, dtype=np.int32)
+        self.hooked: ti.Ndarray | None = None  # the roots the cross-stripe joins hooked (see _cross_stripes)
+        self.hooks = ti.ndarray(ti.i32, 1)
 
     def stripes(self) -> tuple[int, int, int]:
         """``(n_stripes, layers, layer_buckets)`` for the grid's current layout (one stripe up to ONE_STRIPE_MAX
@@ -278,9 +302,13 @@ class LaneComponents:
         g = grid.geometry
         n_stripes, layers, layer_buckets = self.stripes()
         if n_stripes > 1:
+            edges = edge_agents(host_view(grid.start), n_stripes, layers, layer_buckets)
+            held = 0 if self.hooked is None else self.hooked.shape[0]
+            if held < edges:  # grown by doubling: a flock's edge layers fill and empty as it moves
+                self.hooked = ti.ndarray(ti.i32, max(edges, 2 * held))
             _cross_stripes(n_stripes, layers, layer_buckets, r2, box, g.cells_per_side, g.n_buckets, g.boundary,
                            metric, strict, g.dim, grid.start, grid.mixed, grid.pos_sorted, grid.coords_sorted,
-                           self.parent, self.size)
+                           self.parent, self.size, self.hooked, self.hooks)
         parent = small_host_view(self.parent, grid.n)
         if parent is not None:  # a small swarm's roots counted in NumPy: a launch costs more than the count
             roots = parent == np.arange(grid.n, dtype=parent.dtype)
