@@ -243,10 +243,9 @@ def edge_agents(start: np.ndarray, n_stripes: int, layers: int, layer_buckets: i
     bucket starts: at least the number of roots :func:`_cross_stripes` can hook, since each hook joins two sets of
     such agents into one."""
     firsts = (np.arange(n_stripes) * layers // n_stripes) * layer_buckets
-    counts = np.diff(start[: layers * layer_buckets + 1])
-    per_layer = np.add.reduceat(counts, np.arange(0, layers * layer_buckets, layer_buckets))
-    first_layers = firsts // layer_buckets
-    return int(per_layer[first_layers].sum() + per_layer[first_layers - 1].sum())
+    befores = np.where(firsts > 0, firsts, layers * layer_buckets) - layer_buckets  # the wrap's: the last layer
+    return int((start[firsts + layer_buckets] - start[firsts]).sum() + (start[befores + layer_buckets]
+                                                                        - start[befores]).sum())
 
 
 @ti.func
