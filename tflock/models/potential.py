@@ -74,6 +74,9 @@ from tflock.taichi_host import host_array, host_view, small_host_view
 #: a swarm of at most this many agents runs all the steps of an advance() in one single-threaded launch (a fixed
 #: graph's, and a switching one's on the CPU), and its lane-wise metrics pass in two launches
 FUSED_MAX_N = 4096
+#: agents up to which :func:`_exact_nearest` (all n^2 pairs) runs on the calling thread: at 256 agents 88 against
+#: 162 us on the thread pool of 2 cores, at 1024 agents 1335 against 1104 us
+EXACT_NEAREST_ONE_THREAD = 256
 #: per-agent series (valency_i, speed_i; the paper's Figs. 6-8) are recorded up to this many agents
 PER_AGENT_MAX = 20
 #: lambda_2 of the graph Laplacian (numpy.linalg.eigvalsh) is computed up to this many agents
@@ -993,7 +996,7 @@ class Potential(GridModel):
         else:
             p = self.params
             _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy,
-                        one_thread(p.n))
+                        one_thread(self.neighbours.shape[0]))  # its work: the graph's edges
         self._pairs_step = (self.step_index,)
 
     def _lane_pairs(self) -> None:
@@ -1097,7 +1100,7 @@ class Potential(GridModel):
                 self._ensure_grid()
                 self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
-            _exact_nearest(n, self.dim, self.pos, self.nearest, one_thread(n))
+            _exact_nearest(n, self.dim, self.pos, self.nearest, one_thread(n, EXACT_NEAREST_ONE_THREAD))
         if self.switching:
             valency = host_array(self.valency)
             found = self._components_found
