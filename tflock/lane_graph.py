@@ -40,7 +40,7 @@ NO_LABEL = 2**31 - 1
 MIXED = -1
 #: stripes per CPU thread: enough tasks to even out dense and empty parts of the grid
 STRIPES_PER_THREAD = 8
-#: layers a stripe holds at least (its edge layers are joined in a second, scalar pass)
+#: layers a stripe holds at least (its edge layers are joined in a second pass, see LaneComponents.finish)
 MIN_STRIPE_LAYERS = 4
 #: agents (replicas counted together) up to which the grid is one stripe: for a small swarm the join across
 #: stripes, one more launch, costs more than a second thread gains
