@@ -230,9 +230,9 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2:
                             if ti.static(strict):
                                 near = d2 < r2
                             if near:
-                                root, _ = hook_union(parent, s, k)
-                                if root >= 0:
-                                    hooked[ti.atomic_add(hooks[0], 1)] = root
+                                former, _ = hook_union(parent, s, k)  # the root it hooked, if any
+                                if former >= 0:
+                                    hooked[ti.atomic_add(hooks[0], 1)] = former
     for e in range(hooks[0]):  # after every join: the listed roots' sizes to the roots of their merged sets
         root = hooked[e]
         ti.atomic_add(size[find_root(parent, root)], size[root])

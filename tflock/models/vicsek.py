@@ -1014,10 +1014,11 @@ class Vicsek(GridModel):
         """The grid of the current positions; on the fused path with its runs and sorted headings, from one launch of
         :func:`_lane_wise_steps` without steps, and on the serial path from one of :func:`_serial_steps` (a run then
         loads one kernel for its builds and steps, not also the grid's own build)."""
-        if self._grid_step != self.step_index and self._fused():
-            self._fused_steps(0, 0.0)
-        elif self._grid_step != self.step_index and self._serial():
-            self._serial_steps(0, 0.0)
+        if self._grid_step != self.step_index:
+            if self._fused():
+                self._fused_steps(0, 0.0)
+            elif self._serial():
+                self._serial_steps(0, 0.0)
         super()._ensure_grid()
 
     def _ready(self) -> int:
