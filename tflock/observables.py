@@ -21,6 +21,7 @@
 The kernels' NumPy references are in :mod:`tflock.reference.observables`.
 """
 
+import itertools
 import math
 from collections.abc import Hashable, Mapping, Sequence
 
@@ -42,6 +43,9 @@ PROFILE_BINS = 512
 BAND_SMOOTHING = 5
 BAND_THRESHOLD = 1.5
 _SMOOTHING = np.ones(BAND_SMOOTHING) / BAND_SMOOTHING
+#: per dimension, the slices that pick each of the 2^dim boxes of side 1/m inside the boxes of side 2/m
+_CORNERS = {dim: [tuple(slice(o, None, 2) for o in corner) for corner in itertools.product((0, 1), repeat=dim)]
+            for dim in (2, 3)}
 
 
 # ---------------------------------------------------------------------------------------------------- statistics
@@ -112,19 +116,28 @@ def _replica_of(e, per_replica, batched: ti.template(), ids: ti.template()):
 
 
 @ti.kernel
-def _box_counts(n: ti.i32, per_replica: ti.i32, m: ti.i32, scale: float, dim: ti.template(), parts: ti.template(),
-                batched: ti.template(), pos: ti.types.ndarray(), ids: ti.types.ndarray(), counts: ti.types.ndarray()):
+def _box_counts(n: ti.i32, per_replica: ti.i32, m: ti.i32, scale: float, bins: ti.i32, slab_scale: float,
+                dim: ti.template(), parts: ti.template(), batched: ti.template(), slabs: ti.template(),
+                pos: ti.types.ndarray(), ids: ti.types.ndarray(), counts: ti.types.ndarray(),
+                axis: ti.types.ndarray(), hist: ti.types.ndarray()):
     """counts[c, r, b]: agents of part c of replica r in box b, `parts` of them (:func:`count_parts`; 0: one table
-    filled with atomics)."""
+    filled with atomics); where `slabs`, also :func:`_axis_profile`'s slab counts in `hist`, in the same pass over
+    the agents (one read of the positions for both tables)."""
     if ti.static(parts > 0):
         for t in range(parts * TASK_STRIDE):  # a part a task (tflock.cpu_tasks)
             c = task_at(t)
             if c >= 0:
                 for e in range(_share(c, parts, n), _share(c + 1, parts, n)):
-                    counts[c, _replica_of(e, per_replica, batched, ids), _box_of(e, m, scale, dim, pos)] += 1
+                    r = _replica_of(e, per_replica, batched, ids)
+                    counts[c, r, _box_of(e, m, scale, dim, pos)] += 1
+                    if ti.static(slabs):
+                        hist[c, r, _slab_of(e, r, bins, slab_scale, pos, axis)] += 1
     else:
         for e in range(n):
-            ti.atomic_add(counts[0, _replica_of(e, per_replica, batched, ids), _box_of(e, m, scale, dim, pos)], 1)
+            r = _replica_of(e, per_replica, batched, ids)
+            ti.atomic_add(counts[0, r, _box_of(e, m, scale, dim, pos)], 1)
+            if ti.static(slabs):
+                ti.atomic_add(hist[0, r, _slab_of(e, r, bins, slab_scale, pos, axis)], 1)
 
 
 @ti.kernel
@@ -190,14 +203,31 @@ def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
     host = _host_bins(pos, ids, per_replica, replicas, m, m / box, None)
     if host is not None:
         return host.reshape((replicas,) + (m,) * dim)
+    counts = _count_boxes(pos, ids, per_replica, replicas, box, m, counts)
+    return _summed(counts).reshape((replicas,) + (m,) * dim)
+
+
+def _count_boxes(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, box: float, m: int,
+                 counts: ti.Ndarray | None, profile: tuple[Sequence[int], int, tuple[ti.Ndarray, ti.Ndarray]] | None
+                 = None) -> ti.Ndarray:
+    """:func:`box_counts`' kernel: the partial tables, filled; with `profile` = (axes, bins, buffers), also
+    :func:`axis_profile`'s in its buffers, in the same pass."""
+    dim, n = pos.shape
     parts = count_parts()
     if counts is None:
         counts = _tables(parts, replicas, m**dim)
     elif parts:  # the tables given
         parts = counts.shape[0]
     counts.fill(0)
-    _box_counts(n, per_replica, m, m / box, dim, parts, replicas > 1, pos, ids, counts)
-    return _summed(counts).reshape((replicas,) + (m,) * dim)
+    axis, hist = counts, counts  # (unused without a profile)
+    bins = 1
+    if profile is not None:
+        axes, bins, (axis, hist) = profile
+        axis.from_numpy(np.asarray(axes, dtype=np.int32))
+        hist.fill(0)
+    _box_counts(n, per_replica, m, m / box, bins, bins / box, dim, parts, replicas > 1, profile is not None, pos, ids,
+                counts, axis, hist)
+    return counts
 
 
 def axis_profile(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, axes: Sequence[int], box: float,
@@ -251,7 +281,7 @@ def number_fluctuations(counts: np.ndarray) -> tuple[dict[int, float], float]:
         boxes = flat.size
         std[m] = math.sqrt(int(flat @ flat) * boxes - total * total) / boxes
         m //= 2
-        c = c.reshape(sum(((m, 2) for _ in range(dim)), ())).sum(axis=tuple(range(1, 2 * dim, 2)))
+        c = sum(c[corner] for corner in _CORNERS[dim])  # the 2^dim boxes of each coarser box (strided views)
     if len(std) < 2 or min(std.values()) <= 0.0:
         return std, math.nan
     # least-squares slope of log std against log mean, in closed form over these few levels (NumPy's calls cost
@@ -323,14 +353,16 @@ class TransitionObservables:
         if not self.enabled:
             return {}
         out: dict[str, np.ndarray] = {}
+        hist = None
         if self.levels:
-            counts = box_counts(pos, ids, self.n, self.replicas, self.box, self.levels[-1], self._counts)
+            counts, hist = self._finest_counts(pos, ids, mean_direction, state)
             fits = [number_fluctuations(c) for c in counts]
             if len(self.levels) >= 2:
                 out["gnf_exponent"] = np.array([a for _, a in fits])
             for m in self.levels:
                 out[f"gnf_std_{m}"] = np.array([std[m] for std, _ in fits])
-        hist = self.profiles(pos, ids, mean_direction, state)
+        if hist is None:
+            hist = self.profiles(pos, ids, mean_direction, state)
         bands = [band_statistics(h, self.periodic) for h in hist]
         out["band_peaks"] = np.array([b[0] for b in bands])
         out["band_contrast"] = np.array([b[1] for b in bands])
@@ -346,12 +378,29 @@ class TransitionObservables:
         hist = self.profiles(pos, ids, np.asarray(mean_direction)[None], state)[0]
         return {"band_profile": hist * (self.bins / self.n)}
 
+    def _finest_counts(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray,
+                    state: Hashable | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """:func:`box_counts` at the finest level, and :meth:`profiles`' slab counts where a kernel counts them in
+        the same pass (else None: a small swarm's NumPy counts)."""
+        m = self.levels[-1]
+        if small_host_view(pos, pos.shape[1]) is not None:
+            return box_counts(pos, ids, self.n, self.replicas, self.box, m, self._counts), None
+        axes = self._axes(mean_direction)
+        _count_boxes(pos, ids, self.n, self.replicas, self.box, m, self._counts, (axes, self.bins, self._profile))
+        hist = _summed(self._profile[1])
+        self._last_profile = (state, axes, hist) if state is not None else None
+        return _summed(self._counts).reshape((self.replicas,) + (m,) * self.dim), hist
+
+    def _axes(self, mean_direction: np.ndarray) -> tuple[int, ...]:
+        """Each replica's box axis nearest to its mean heading."""
+        return tuple(np.argmax(np.abs(np.asarray(mean_direction).reshape(self.replicas, self.dim)), axis=1).tolist())
+
     def profiles(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray,
                  state: Hashable | None = None) -> np.ndarray:
         """Slab counts along each replica's axis nearest to its mean heading: (replicas, bins). `state`, when
         given, names the positions (e.g. the model's step and grid build): a second call for the same state and
         axes (a frame drawn at a metrics step) returns the counts of the first instead of counting again."""
-        axes = tuple(np.argmax(np.abs(np.asarray(mean_direction).reshape(self.replicas, self.dim)), axis=1).tolist())
+        axes = self._axes(mean_direction)
         last = self._last_profile
         if state is not None and last is not None and last[0] == state and last[1] == axes:
             return last[2]
