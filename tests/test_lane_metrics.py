@@ -112,7 +112,7 @@ def test_stripes_do_not_change_the_partition(engine, monkeypatch, threads):
     assert_graph_metrics(model.metrics(), expected)
     monkeypatch.setattr(lane_graph, "ONE_STRIPE_MAX", 0)
     model.invalidate()
-    assert model.components.stripes()[0] == min(8 * threads, 34 // 4)
+    assert model.components.stripes()[0] == min(lane_graph.STRIPES_PER_THREAD * threads, 34 // 4)
     assert_graph_metrics(model.metrics(), expected)
 
 

@@ -38,8 +38,9 @@ from tflock.union_find import find_root, hook_union
 NO_LABEL = 2**31 - 1
 #: a lane's near candidates carried two set labels (see fold_label)
 MIXED = -1
-#: stripes per CPU thread: enough tasks to even out dense and empty parts of the grid
-STRIPES_PER_THREAD = 8
+#: stripes per CPU thread: enough tasks to even out dense and empty parts of the grid, few enough edge layers for
+#: the joins across stripes (LaneComponents.finish: about a millisecond per 4 stripes at 1e6 in a developed flock)
+STRIPES_PER_THREAD = 4
 #: layers a stripe holds at least (its edge layers are joined in a second pass, see LaneComponents.finish)
 MIN_STRIPE_LAYERS = 4
 #: agents (replicas counted together) up to which the grid is one stripe: for a small swarm the join across
@@ -220,6 +221,7 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2:
             for s in range(s_lo, start[ti.min(b_lo + layer_buckets, b_hi)]):
                 p = load_vec(pos_sorted, s, dim)
                 c = load_cell(coords_sorted, s, dim)
+                root = s  # a recent root of s's set: a candidate already under it needs no union
                 for o in range(ti.static(span_count(layout, dim) // 3)):
                     lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
                     begin, end, _ = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
@@ -229,8 +231,9 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2:
                             near = d2 <= r2
                             if ti.static(strict):
                                 near = d2 < r2
-                            if near:
-                                former, _ = hook_union(parent, s, k)  # the root it hooked, if any
+                            if near and parent[k] != root:
+                                former, merged = hook_union(parent, root, k)  # the root it hooked, if any
+                                root = merged
                                 if former >= 0:
                                     hooked[ti.atomic_add(hooks[0], 1)] = former
     for e in range(hooks[0]):  # after every join: the listed roots' sizes to the roots of their merged sets
@@ -315,10 +318,4 @@ class LaneComponents:
             return int(roots.sum()), int(sizes.max(initial=0))
         _count_components(grid.n, self.parent, self.size, self.result)
         return int(self.result[0]), int(self.result[1])
-
-
-def degree_stats(counts: np.ndarray) -> tuple[float, float]:
-    """Mean and max neighbour count from the pass's per-agent counts (itself included, floats)."""
-    total = float(counts.sum(dtype=np.float64))
-    return total / len(counts) - 1.0, float(counts.max()) - 1.0
 
