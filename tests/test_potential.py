@@ -343,11 +343,11 @@ def _lane_pass_state(dim, shape):
 @pytest.mark.parametrize("one_launch", [True, False])
 def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engine, monkeypatch, dim, shape,
                                                                              one_launch):
-    """The metrics pass that also sums the next step (each agent's valency, energy and nearest distance, the
-    components by stripes of grid layers and their cross-stripe joins) gives the oracle's numbers, and the steps
-    after it are bit for bit those of a run without metrics: many small clusters, and one dense cluster. Both the
-    small swarm's pass in one launch (the components as one stripe) and the striped pass of larger swarms
-    (FUSED_MAX_N = ONE_STRIPE_MAX = 0 here)."""
+    """The metrics pass that also sums the next step (each agent's valency; the components by stripes of grid
+    layers and their cross-stripe joins, and each agent's energy and nearest distance over its pairs with the agents
+    at smaller grid slots) gives the oracle's numbers, and the steps after it are bit for bit those of a run without
+    metrics: many small clusters, and one dense cluster. Both the small swarm's pass in one launch (the components
+    as one stripe) and the striped pass of larger swarms (FUSED_MAX_N = ONE_STRIPE_MAX = 0 here)."""
     import tflock.lane_graph as lane_graph
     import tflock.models.potential as potential
     from tflock.neighbors import BOUNDED
@@ -374,11 +374,15 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
         np.fill_diagonal(r2, np.inf)
         near = r2 < p.radius**2
         assert np.array_equal(observed.valency.to_numpy(), near.sum(axis=1)), f"valency at step {t}"
-        nearest = np.sqrt(np.minimum(r2.min(axis=1), p.radius**2))
+        slot = np.empty(n, dtype=np.int64)  # each agent's grid slot: a pair is summed at its later slot
+        slot[observed.grid.id_sorted.to_numpy()[:n]] = np.arange(n)
+        earlier = near & (slot[None, :] < slot[:, None])
+        nearest = np.sqrt(np.where(earlier, r2, p.radius**2).min(axis=1))
         assert gap(observed.nearest.to_numpy(), nearest) < TOL, f"nearest at step {t}"
         pair_v = p.desired_distance**2 / r2 + np.log(r2) - (p.desired_distance**2 / p.radius**2 + np.log(p.radius**2))
-        energy = 0.5 * np.where(near, pair_v, 0.0).sum(axis=1)
+        energy = np.where(earlier, pair_v, 0.0).sum(axis=1)
         assert gap(observed.energy.to_numpy(), energy) < 10 * TOL, f"energy at step {t}"
+        assert observed.nearest.to_numpy().min() == pytest.approx(np.sqrt(min(r2.min(), p.radius**2)), rel=TOL)
         expected = ref.potential_metrics(state["x"], state["v"], p)
         got = observed.metrics()
         assert got["components"] == expected["components"], f"components at step {t}"

@@ -251,6 +251,16 @@ def _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim: ti.template(), id_s
     32-bit compare with one broadcast load, where the slot (the loop's 64-bit index) takes two compares and a pack.
     An exit that never fires keeps LLVM's loop vectoriser off this loop, as in the Vicsek model's lane-wise sums
     (vectorised across candidates too, the loop is slower)."""
+    u, _ = _counted_accelerations(begin, end, ids, p, v, u, ti.Vector([0] * LANES), r2cut, d2, dim, id_sorted,
+                                  pos_sorted, vel_sorted, False)
+    return u
+
+
+@ti.func
+def _counted_accelerations(begin, end, ids, p, v, u, count, r2cut, d2, dim: ti.template(), id_sorted: ti.template(),
+                           pos_sorted: ti.template(), vel_sorted: ti.template(), counted: ti.template()):
+    """:func:`_accelerations`, and where `counted` each lane's candidates within R added to `count` (its valency
+    |N_i|, in the loop that tests them for the accelerations anyway)."""
     for k in range(begin, end):
         j = id_sorted[k]
         if j < 0:  # never: ids count from 0
@@ -264,7 +274,9 @@ def _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim: ti.template(), id_s
         for a in ti.static(range(dim)):
             for q in ti.static(range(LANES)):
                 u[a, q] += ti.select(inside[q], (vel_sorted[a, k] - v[a, q]) + coef[q] * d[a, q], 0.0)
-    return u
+        if ti.static(counted):
+            count += ti.select(inside, 1, 0)
+    return u, count
 
 
 @ti.func
@@ -410,66 +422,77 @@ def _lane_r2(k, p, dim: ti.template(), pos_sorted: ti.template()):
 # vectoriser off it, as in _accelerations.
 
 @ti.func
+def _pair_terms(r2, inside, count, pot, product, near, inv_r2cut, d2, v_cut):
+    """Add one pair per lane where `inside` to the lanes' pair sums: their count, the saturated potential's
+    d^2 / r^2 - V(R) terms, the float64 product of r^2 / R^2 (each factor in (0, 1), a product by 1 / R^2,
+    `inv_r2cut`: a float64 division per candidate would cost more than the rest of the loop; the potential's
+    logarithms are summed as the log of the product, which :func:`_pair_potentials` takes) and the nearest squared
+    distance."""
+    count += ti.select(inside, 1, 0)
+    near = ti.select(inside, ti.min(near, r2), near)
+    pot += ti.select(inside, d2 / r2 - v_cut, 0.0)  # itself: 0 / 0, never added
+    product *= ti.select(inside, ti.cast(r2, ti.f64) * inv_r2cut, 1.0)
+    return count, pot, product, near
+
+
+@ti.func
 def _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template(),
                id_sorted: ti.template(), pos_sorted: ti.template()):
-    """Valency, the saturated potential's d^2 / r^2 - V(R) terms, the float64 product of r^2 / R^2 (each factor in
-    (0, 1), a product by 1 / R^2, `inv_r2cut`: a float64 division per candidate would cost more than the rest of
-    the loop; the potential's logarithms are summed as the log of the product, which the caller takes) and the
-    nearest squared distance."""
+    """:func:`_pair_terms` of the candidates [begin, end) within R."""
     for k in range(begin, end):
         j = id_sorted[k]
         if j < 0:  # never: ids count from 0
             break
         r2 = _lane_r2(k, p, dim, pos_sorted)
-        inside = (r2 < r2cut) & (ids != j)
-        count += ti.select(inside, 1, 0)
-        near = ti.select(inside, ti.min(near, r2), near)
-        pot += ti.select(inside, d2 / r2 - v_cut, 0.0)  # itself: 0 / 0, never added
-        product *= ti.select(inside, ti.cast(r2, ti.f64) * inv_r2cut, 1.0)
+        count, pot, product, near = _pair_terms(r2, (r2 < r2cut) & (ids != j), count, pot, product, near, inv_r2cut,
+                                                d2, v_cut)
     return count, pot, product, near
 
 
 @ti.func
-def _pair_labels(begin, end, ids, p, label, other, r2cut, dim: ti.template(), id_sorted: ti.template(),
-                 pos_sorted: ti.template(), parent: ti.template()):
-    """The components (:mod:`tflock.lane_graph`): the candidates [begin, end), in the stripe before the block and
-    settled, fold their set labels into each lane they are near."""
+def _pair_labels(begin, end, ids, p, label, other, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut,
+                 dim: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), parent: ti.template()):
+    """:func:`_pair_sums` of the candidates [begin, end), in the stripe before the block and settled, which also
+    fold their set labels into each lane they are near (the components, :mod:`tflock.lane_graph`)."""
     for k in range(begin, end):
         j = id_sorted[k]
         if j < 0:  # never
             break
         r2 = _lane_r2(k, p, dim, pos_sorted)
-        label, other = fold_label(label, other, (r2 < r2cut) & (ids != j), parent[k])
-    return label, other
+        inside = (r2 < r2cut) & (ids != j)
+        label, other = fold_label(label, other, inside, parent[k])
+        count, pot, product, near = _pair_terms(r2, inside, count, pot, product, near, inv_r2cut, d2, v_cut)
+    return label, other, count, pot, product, near
 
 
 @ti.func
-def _block_mask(p, ids, r2cut, dim: ti.template()):
-    """Per lane, the bit mask of the lanes within R of it, itself included (:func:`tflock.lane_graph.settle_block`):
-    the lanes' own pairs, as the candidate loops test them (every lane of a block is a candidate of its run)."""
+def _block_pairs(p, ids, width, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template()):
+    """The block's own pairs, as the candidate loops test them (every lane of a block is a candidate of its run):
+    per lane, the bit mask of the lanes within R of it, itself included (:func:`tflock.lane_graph.settle_block`),
+    and :func:`_pair_terms` of the lanes within R before it in the block (each pair once, at its later lane)."""
     inmask = ti.Vector([1 << q for q in ti.static(range(LANES))])
     for k in ti.static(range(LANES)):
         r2 = ti.Vector([(p[0, k] - p[0, q]) * (p[0, k] - p[0, q]) for q in ti.static(range(LANES))])
         for a in ti.static(range(1, dim)):
             r2 += ti.Vector([(p[a, k] - p[a, q]) * (p[a, k] - p[a, q]) for q in ti.static(range(LANES))])
-        inmask |= ti.select((r2 < r2cut) & (ids != ids[k]), 1 << k, 0)
-    return inmask
+        inside = (r2 < r2cut) & (ids != ids[k])
+        inmask |= ti.select(inside, 1 << k, 0)
+        after = ti.Vector([ti.select(q < width, 1 if q > k else 0, 0) for q in ti.static(range(LANES))]) == 1
+        count, pot, product, near = _pair_terms(r2, inside & after, count, pot, product, near, inv_r2cut, d2, v_cut)
+    return inmask, count, pot, product, near
 
 
 @ti.kernel
-def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, v_cut: float, dim: ti.template(),
+def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float, dim: ti.template(),
                      layout: ti.template(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
                      id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
-                     accel: ti.types.ndarray(), valency: ti.types.ndarray(), energy: ti.types.ndarray(),
-                     nearest: ti.types.ndarray(), serial: ti.template()):
+                     accel: ti.types.ndarray(), valency: ti.types.ndarray(), serial: ti.template()):
     """The next step's neighbour pass, run for a state whose metrics are taken (as :func:`_step_lanes` takes the
     agents): each agent's u_i (eq. 3) into ``accel`` (slot order; :func:`_move` then makes the step, bit for bit as
-    :func:`_step_lanes`), and per agent (agent order) its valency |N_i|, half its saturated potential
-    1/2 sum (V - V(R)) and its nearest distance, capped at R. `serial`: on the calling thread (a small swarm,
-    :func:`tflock.cpu_tasks.one_thread`)."""
+    :func:`_step_lanes`) and its valency |N_i| (agent order), counted in the same loop. `serial`: on the calling
+    thread (a small swarm, :func:`tflock.cpu_tasks.one_thread`)."""
     ti.loop_config(serialize=serial)
     for b in range(total_buckets):
-        inv_r2cut = 1.0 / ti.cast(r2cut, ti.f64)
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
         for block in range((a1 - a0 + LANES - 1) // LANES):
             i0 = a0 + block * LANES
@@ -479,34 +502,33 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
             u = p * 0.0
             ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
             count = ti.Vector([0] * LANES)
-            pot = ti.Vector([0.0] * LANES)
-            logs = ti.Vector([0.0] * LANES, dt=ti.f64)
-            product = ti.Vector([1.0] * LANES, dt=ti.f64)
-            near = ti.Vector([r2cut] * LANES)
             for r in range(ti.static(3 ** (dim - 1))):
                 begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                u = _accelerations(begin, end, ids, p, v, u, r2cut, d2, dim, id_sorted, pos_sorted, vel_sorted)
-                count, pot, product, near = _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut,
-                                                       inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted)
-                if (product < PRODUCT_FLOOR).any():  # its log, before the next span's factors could underflow it
-                    logs += ti.log(product)
-                    product = ti.Vector([1.0] * LANES, dt=ti.f64)
-            logs += ti.log(product)  # one logarithm per agent (a call to libm each): not one per span
-            pot += ti.cast(logs + ti.cast(count, ti.f64) * ti.log(ti.cast(r2cut, ti.f64)), float)  # the run's type
+                u, count = _counted_accelerations(begin, end, ids, p, v, u, count, r2cut, d2, dim, id_sorted,
+                                                  pos_sorted, vel_sorted, True)
             for q in ti.static(range(LANES)):
                 if i0 + q < a1:
                     for a in ti.static(range(dim)):
                         accel[a, i0 + q] = u[a, q]
                     valency[ids[q]] = count[q]
-                    energy[ids[q]] = 0.5 * pot[q]
-                    nearest[ids[q]] = ti.sqrt(near[q])
 
 
 @ti.func
-def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim: ti.template(), layout: ti.template(),
-                       start: ti.template(), run_end: ti.template(), id_sorted: ti.template(),
-                       pos_sorted: ti.template(), parent: ti.template(), size: ti.template()):
+def _pair_potentials(count, pot, product, logs, r2cut):
+    """Per lane, its pairs' saturated potential sum (V - V(R)) from :func:`_pair_terms`' sums: the d^2 / r^2 - V(R)
+    terms plus the log of each r^2, the logs of the products (`logs` those taken so far, `product` the rest) and
+    count log R^2 (one logarithm per agent, a call to libm each: not one per pair)."""
+    logs += ti.log(product)
+    return pot + ti.cast(logs + ti.cast(count, ti.f64) * ti.log(ti.cast(r2cut, ti.f64)), float)  # the run's type
+
+
+@ti.func
+def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut, dim: ti.template(),
+                       layout: ti.template(), start: ti.template(), run_end: ti.template(), id_sorted: ti.template(),
+                       pos_sorted: ti.template(), parent: ti.template(), size: ti.template(),
+                       energy: ti.template(), nearest: ti.template()):
     """Stripe j's part of :func:`_components_lanes`."""
+    inv_r2cut = 1.0 / ti.cast(r2cut, ti.f64)
     b_lo, b_hi, s_lo, _ = stripe_range(j, n_stripes, layers, layer_buckets, start)
     for b in range(b_lo, b_hi):
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
@@ -519,11 +541,28 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim: ti.t
             ids = ti.Vector([id_sorted[slots[q]] for q in ti.static(range(LANES))])
             label = ti.Vector([NO_LABEL] * LANES)
             other = ti.Vector([NO_LABEL] * LANES)
-            for r in range(ti.static(3 ** (dim - 1))):  # the candidates in the stripe before the block
+            count = ti.Vector([0] * LANES)
+            pot = ti.Vector([0.0] * LANES)
+            logs = ti.Vector([0.0] * LANES, dt=ti.f64)
+            product = ti.Vector([1.0] * LANES, dt=ti.f64)
+            near = ti.Vector([r2cut] * LANES)
+            for r in range(ti.static(3 ** (dim - 1))):  # the candidates before the block
                 begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                label, other = _pair_labels(ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, r2cut,
-                                            dim, id_sorted, pos_sorted, parent)
-            inmask = _block_mask(p, ids, r2cut, dim)
+                count, pot, product, near = _pair_sums(begin, ti.min(end, s_lo), ids, p, count, pot, product, near,
+                                                       r2cut, inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted)
+                label, other, count, pot, product, near = _pair_labels(
+                    ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, count, pot, product, near, r2cut,
+                    inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted, parent)
+                if (product < PRODUCT_FLOOR).any():  # its log, before the next span's factors could underflow it
+                    logs += ti.log(product)
+                    product = ti.Vector([1.0] * LANES, dt=ti.f64)
+            inmask, count, pot, product, near = _block_pairs(p, ids, i1 - i0, count, pot, product, near, r2cut,
+                                                             inv_r2cut, d2, v_cut, dim)
+            pot = _pair_potentials(count, pot, product, logs, r2cut)
+            for q in ti.static(range(LANES)):
+                if i0 + q < a1:
+                    energy[ids[q]] = pot[q]
+                    nearest[ids[q]] = ti.sqrt(near[q])
             roots, recheck = block_roots(i1 - i0, label, other, parent, size)
             while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
                 bit = recheck & (-recheck)
@@ -541,34 +580,41 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim: ti.t
 
 
 @ti.kernel
-def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float,
-                      dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(),
+def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
+                      v_cut: float, dim: ti.template(), layout: ti.template(), start: ti.types.ndarray(),
                       run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
-                      parent: ti.types.ndarray(), size: ti.types.ndarray()):
+                      parent: ti.types.ndarray(), size: ti.types.ndarray(), energy: ti.types.ndarray(),
+                      nearest: ti.types.ndarray()):
     """The components of the graph |r_ij| < R in ``parent``, ``LANES`` agents at a time (stripes of layers, a stripe
-    a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them)."""
+    a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them), and per agent (agent order) the pairs
+    within R it makes with the agents at smaller grid slots, each pair once: their saturated potential
+    sum (V - V(R)) in ``energy`` (whose total is the potential energy) and the nearest of them in ``nearest``
+    (capped at R; the smallest over all agents is the nearest pair's). A block's candidates before it are all in
+    its stencil's spans (the earlier stripes' for the pair sums only, its own stripe's also for the labels), and
+    its own pairs in :func:`_block_pairs`."""
     for t in range(n_stripes * TASK_STRIDE):  # a stripe a task (tflock.cpu_tasks)
         j = task_at(t)
         if j >= 0:
-            _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, dim, layout, start, run_end,
-                               id_sorted, pos_sorted, parent, size)
+            _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut, dim, layout, start,
+                               run_end, id_sorted, pos_sorted, parent, size, energy, nearest)
 
 
 @ti.kernel
-def _small_components(n: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float, dim: ti.template(),
-                      order: ti.types.ndarray(), vel: ti.types.ndarray(), vel_sorted: ti.types.ndarray(),
-                      start: ti.types.ndarray(), run_end: ti.types.ndarray(), id_sorted: ti.types.ndarray(),
-                      pos_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), size: ti.types.ndarray(),
+def _small_components(n: ti.i32, layers: ti.i32, layer_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
+                      v_cut: float, dim: ti.template(), order: ti.types.ndarray(), vel: ti.types.ndarray(),
+                      vel_sorted: ti.types.ndarray(), start: ti.types.ndarray(), run_end: ti.types.ndarray(),
+                      id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), parent: ti.types.ndarray(),
+                      size: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray(),
                       result: ti.types.ndarray()):
     """A small swarm's part of the lane-wise metrics pass before its sums (:func:`_step_sums_lanes`), in one launch
     on one thread (a launch costs more than its arithmetic): the velocities in cell order
-    (:func:`_gather_velocities`) and the components of :func:`_components_lanes` as one stripe, counted
+    (:func:`_gather_velocities`) and :func:`_components_lanes` as one stripe, counted
     (:func:`tflock.lane_graph.count_roots`: result = components, agents in the largest)."""
     ti.loop_config(serialize=True)
     for _ in range(1):
         _gather_velocities(n, dim, order, vel, vel_sorted)
-        _stripe_components(0, 1, layers, layer_buckets, nc, r2cut, dim, BOUNDED, start, run_end, id_sorted,
-                           pos_sorted, parent, size)
+        _stripe_components(0, 1, layers, layer_buckets, nc, r2cut, d2, v_cut, dim, BOUNDED, start, run_end,
+                           id_sorted, pos_sorted, parent, size, energy, nearest)
         count_roots(n, parent, size, result)
 
 
@@ -982,8 +1028,9 @@ class Potential(GridModel):
                     grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
 
     def _pair_energies(self) -> None:
-        """Each agent's half of its pair potentials in ``energy`` (switching: also ``valency`` and ``nearest``),
-        once per step: the stability guard and the metrics share them."""
+        """Each agent's share of the pair potentials in ``energy`` (half of each of its pairs; on the lane-wise pass
+        its pairs with agents at smaller grid slots: the same total) and, switching, ``valency`` and ``nearest``, once
+        per step: the stability guard and the metrics share them."""
         if self._pairs_step == (self.step_index,):
             return
         if self.switching:
@@ -1008,26 +1055,27 @@ class Potential(GridModel):
         v_cut = d2 / r2cut + math.log(r2cut)
         if p.n <= FUSED_MAX_N:  # the velocities in cell order and the components (one stripe, counted): one launch
             layer_buckets = g.cells_per_side ** (self.dim - 1)
-            _small_components(p.n, g.total_buckets // layer_buckets, layer_buckets, g.cells_per_side, r2cut, self.dim,
-                              grid.order, self.vel, self.scratch, grid.start, grid.runs(), grid.id_sorted,
-                              grid.pos_sorted, found.parent, found.size, found.result)
-            self._sum_pairs(r2cut, d2, v_cut)
+            _small_components(p.n, g.total_buckets // layer_buckets, layer_buckets, g.cells_per_side, r2cut, d2,
+                              v_cut, self.dim, grid.order, self.vel, self.scratch, grid.start, grid.runs(),
+                              grid.id_sorted, grid.pos_sorted, found.parent, found.size, self.energy, self.nearest,
+                              found.result)
+            self._sum_pairs(r2cut, d2)
             self._components_found = (self.step_index, int(found.result[0]))
             return
         _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
-        self._sum_pairs(r2cut, d2, v_cut)
+        self._sum_pairs(r2cut, d2)
         stripes = found.stripes()
-        _components_lanes(*stripes, g.cells_per_side, r2cut, self.dim, g.boundary, grid.start, grid.runs(),
-                          grid.id_sorted, grid.pos_sorted, found.parent, found.size)
+        _components_lanes(*stripes, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start, grid.runs(),
+                          grid.id_sorted, grid.pos_sorted, found.parent, found.size, self.energy, self.nearest)
         self._components_found = (self.step_index, found.finish(r2cut, p.box, OPEN, strict=True)[0])  # |r_ij| < R
 
-    def _sum_pairs(self, r2cut: float, d2: float, v_cut: float) -> None:
+    def _sum_pairs(self, r2cut: float, d2: float) -> None:
         """:func:`_step_sums_lanes` on the grid, the velocities in cell order in ``scratch``."""
         grid = self.grid
         g = grid.geometry
-        _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start,
-                         grid.runs(), grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel,
-                         self.valency, self.energy, self.nearest, one_thread(grid.n))
+        _step_sums_lanes(g.total_buckets, g.cells_per_side, r2cut, d2, self.dim, g.boundary, grid.start, grid.runs(),
+                         grid.id_sorted, grid.pos_sorted, self.scratch, self._next_step.accel, self.valency,
+                         one_thread(grid.n))
         self._next_step.summed = (self.step_index, grid.builds)
 
     def lyapunov(self) -> Lyapunov:
