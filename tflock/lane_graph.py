@@ -232,8 +232,7 @@ def _cross_stripes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, r2:
                             if ti.static(strict):
                                 near = d2 < r2
                             if near and parent[k] != root:
-                                former, merged = hook_union(parent, root, k)  # the root it hooked, if any
-                                root = merged
+                                former, root = hook_union(parent, root, k)  # the root it hooked, if any
                                 if former >= 0:
                                     hooked[ti.atomic_add(hooks[0], 1)] = former
     for e in range(hooks[0]):  # after every join: the listed roots' sizes to the roots of their merged sets
