@@ -144,6 +144,33 @@ def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), par
 
 #: columns of :func:`_velocity_stats`' partials: sums of v (dim), |v|, |v|^2, v / |v| (dim), |v - mean|, then the
 #: largest |v|, smallest |v| and largest |v - mean|
+@ti.kernel
+def _pair_blocks(n: ti.i32, valency: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray(),
+                 partial: ti.types.ndarray()):
+    """Per block of BLOCK agents, in float64: the valencies' sum, smallest and largest, the energies' sum and the
+    smallest nearest distance (partial[b, 0..4]); the blocks are reduced in NumPy, the same whatever the threads."""
+    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
+        blk = task_at(t)
+        if blk >= 0:
+            lo = blk * BLOCK
+            count = 0
+            fewest = valency[lo]
+            most = valency[lo]
+            pot = ti.cast(0.0, ti.f64)
+            near = ti.cast(nearest[lo], ti.f64)
+            for i in range(lo, ti.min(n, lo + BLOCK)):
+                count += valency[i]
+                fewest = ti.min(fewest, valency[i])
+                most = ti.max(most, valency[i])
+                pot += ti.cast(energy[i], ti.f64)
+                near = ti.min(near, ti.cast(nearest[i], ti.f64))
+            partial[blk, 0] = ti.cast(count, ti.f64)
+            partial[blk, 1] = ti.cast(fewest, ti.f64)
+            partial[blk, 2] = ti.cast(most, ti.f64)
+            partial[blk, 3] = pot
+            partial[blk, 4] = near
+
+
 def _velocity_columns(dim: int) -> int:
     return 2 * dim + 6
 
@@ -897,6 +924,7 @@ class Potential(GridModel):
     def invalidate(self) -> None:
         super().invalidate()
         self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
+        self._totals: tuple[float, ...] | None = None  # _pair_totals() of those energies
         self._components_found: tuple[int, int] | None = None  # (step, components) where the pairs' pass found them
         self._next_step.summed = None
 
@@ -1045,6 +1073,7 @@ class Potential(GridModel):
             _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy,
                         one_thread(self.neighbours.shape[0]))  # its work: the graph's edges
         self._pairs_step = (self.step_index,)
+        self._totals = None
 
     def _lane_pairs(self) -> None:
         """The lane-wise metrics pass (:func:`_step_sums_lanes`): the next step's accelerations, each agent's
@@ -1085,7 +1114,27 @@ class Potential(GridModel):
         self._pair_energies()
         v = host_view(self.vel)  # the sum in the run's precision, no temporary: close enough for a 100 % slack
         squares = float(np.einsum("ij,ij->", v, v)) if v is not None else self.kernel_velocity_stats()[2]
-        return Lyapunov("Q" if self.switching else "W", 0.5 * squares, total(self.energy, self.params.n))
+        potential = self._pair_totals()[3] if self.switching else total(self.energy, self.params.n)
+        return Lyapunov("Q" if self.switching else "W", 0.5 * squares, potential)
+
+    def _pair_totals(self) -> tuple[float, ...]:
+        """What the metrics and the guard read of a switching run's per-agent pair arrays, once per step's energies:
+        the valencies' sum, smallest and largest, the potential energy (the energies' total) and the smallest nearest
+        distance. NumPy's on a small swarm's host memory (a launch costs more); above, one pass of
+        :func:`_pair_blocks` (NumPy's reductions took a pass each, on one core)."""
+        n = self.params.n
+        valency = small_host_view(self.valency, n)
+        if valency is not None:  # (not cached: a small swarm's _exact_nearest may rewrite nearest after the pass)
+            valency, nearest = valency[:n], host_view(self.nearest)[:n]
+            return (float(valency.sum()), float(valency.min()), float(valency.max()), total(self.energy, n),
+                    float(nearest.min()))
+        if self._totals is None:
+            partial = _block_partials((n_blocks(n), 5), ti.f64)
+            _pair_blocks(n, self.valency, self.energy, self.nearest, partial)
+            blocks = partial.to_numpy()
+            self._totals = (float(blocks[:, 0].sum()), float(blocks[:, 1].min()), float(blocks[:, 2].max()),
+                            float(blocks[:, 3].sum()), float(blocks[:, 4].min()))
+        return self._totals
 
     def step_spread(self) -> tuple[float, float]:
         """dt max_a (max_i v_ia - min_i v_ia), at most the largest relative displacement of two agents in a step,
@@ -1150,26 +1199,26 @@ class Potential(GridModel):
         if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
             _exact_nearest(n, self.dim, self.pos, self.nearest, one_thread(n, EXACT_NEAREST_ONE_THREAD))
         if self.switching:
-            valency = host_array(self.valency)
+            valencies, fewest, most, potential, nearest = self._pair_totals()
             found = self._components_found
             if found is not None and found[0] == self.step_index:  # by _pair_energies' pass
                 components = float(found[1])
             else:
-                components = float(self.graph.components(p.radius, p.box, float(valency.mean()))[0])
+                components = float(self.graph.components(p.radius, p.box, valencies / n)[0])
         else:
             valency = self.valency_np
+            valencies, fewest, most = float(valency.sum()), float(valency.min()), float(valency.max())
+            potential, nearest = total(self.energy, n), float(host_array(self.nearest).min())
         stats = self._velocity_stats()
-        potential = total(self.energy, n)
-        nearest = host_array(self.nearest)
         out = {
             **stats,
             "potential_energy": potential,
             "W": stats["kinetic_energy"] + potential,
             "Q": stats["kinetic_energy"] + potential,
-            "min_distance": float(nearest.min()) if n > 1 else 0.0,
-            "valency_mean": float(valency.mean()),
-            "valency_min": float(valency.min()),
-            "valency_max": float(valency.max()),
+            "min_distance": nearest if n > 1 else 0.0,
+            "valency_mean": valencies / n,
+            "valency_min": fewest,
+            "valency_max": most,
             "components": components,
             "connected": float(components == 1.0),
         }
@@ -1179,6 +1228,7 @@ class Potential(GridModel):
             ids = self.ids.to_numpy()
             agent_speed = np.empty(n)
             agent_speed[ids] = np.sqrt((self.vel.to_numpy().astype(np.float64) ** 2).sum(axis=0))
+            valency = host_array(self.valency) if self.switching else self.valency_np
             out.update({f"valency_{i}": float(valency[i]) for i in range(n)})
             out.update({f"speed_{i}": float(agent_speed[i]) for i in range(n)})
         return {name: out[name] for name in self.metric_descriptions}
