@@ -8,7 +8,9 @@
 
 Each checkout runs in a process of its own (its own ``tflock`` on ``PYTHONPATH``, its own kernels), set up once per
 case: `tflock bench`'s workload (the model's default config at N agents, density kept; ``case_config``) with
-metrics every 10 steps, or a paper config without its recording, stepped 20 steps and saved. Each round then
+metrics every 10 steps (``--metrics-every``), or a paper config without its recording, stepped 20 steps and saved.
+``--case MODEL:N`` (repeatable) replaces the small-swarm cases, e.g. ``--case vicsek:1000000 --metrics-every 1
+--steps 5`` for a large run's cost per step with metrics every step. Each round then
 restores that state in every checkout in turn and times ``Simulation.step(steps)``, so the checkouts alternate
 within seconds of each other. Prints and writes JSON: ms per step, median (min-max) over the rounds, and each
 checkout's speed-up over the first one given.
@@ -38,9 +40,9 @@ CASES = [("vicsek", 10), ("vicsek", 100), ("vicsek", 1000), ("potential", 10), (
 READY = "ready"
 
 
-def case_simulation(name: str, n: int) -> Any:  # a Simulation of whichever tflock is on the path
+def case_simulation(name: str, n: int, metrics_every: int = 10) -> Any:  # a Simulation of the tflock on the path
     """A case's Simulation, with no end in sight: a paper config without its recording, or `tflock bench`'s
-    workload of a model at N agents with metrics every 10 steps."""
+    workload of a model at N agents with metrics every `metrics_every` steps."""
     from tflock.bench import BenchCase, case_config
     from tflock.simulation import Simulation
 
@@ -48,17 +50,17 @@ def case_simulation(name: str, n: int) -> Any:  # a Simulation of whichever tflo
         return Simulation(name, steps=10**9, record=False)
     config = case_config(BenchCase(model=name, n=n))
     config["steps"] = 10**9
-    config["log"] = {"metrics_every": 10}
+    config["log"] = {"metrics_every": metrics_every}
     return Simulation(config)
 
 
-def worker(name: str, n: int, steps: int) -> None:
+def worker(name: str, n: int, steps: int, metrics_every: int) -> None:
     """Set up one case, then time `steps` steps from the saved state for every "round" line on stdin."""
     import taichi as ti
 
     import tflock
 
-    sim = case_simulation(name, n)
+    sim = case_simulation(name, n, metrics_every)
     sim.step(20)
     start = (sim.model.checkpoint(), sim.model.step_index)
     print(READY, Path(tflock.__file__).parent, flush=True)
@@ -131,12 +133,12 @@ def _reply(proc: subprocess.Popen) -> str:
             return line.strip()
 
 
-def run_case(trees: dict[str, Path], name: str, n: int, rounds: int, steps: int) -> dict:
+def run_case(trees: dict[str, Path], name: str, n: int, rounds: int, steps: int, metrics_every: int = 10) -> dict:
     procs = {}
     for label, tree in trees.items():
         case = str(tree / name) if name.endswith(".toml") else name
         procs[label] = subprocess.Popen(
-            [sys.executable, __file__, "--worker", case, str(n), str(steps)], cwd=tree,
+            [sys.executable, __file__, "--worker", case, str(n), str(steps), str(metrics_every)], cwd=tree,
             env={**os.environ, "PYTHONPATH": str(tree)}, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL, text=True)
     for label, proc in procs.items():  # each checkout runs its own code
@@ -165,7 +167,7 @@ def run_case(trees: dict[str, Path], name: str, n: int, rounds: int, steps: int)
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--worker":
-        worker(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+        worker(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]))
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--recorded-worker":
         recorded_worker(sys.argv[2], sys.argv[3])
@@ -178,8 +180,12 @@ def main() -> None:
                     help="time these configs with their recordings (run + close) instead of the step cases")
     ap.add_argument("--repeats", type=int, default=3, help="runs of each recorded config per checkout")
     ap.add_argument("--cli", action="store_true", help="with --recorded: run each as `tflock sim --config CONFIG`")
+    ap.add_argument("--case", action="append", default=None, metavar="MODEL:N",
+                    help="a step case instead of the small-swarm ones (repeatable)")
+    ap.add_argument("--metrics-every", type=int, default=10, help="the step cases' metrics cadence")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    cases = CASES if a.case is None else [(c.split(":")[0], int(float(c.split(":")[1]))) for c in a.case]
     trees = {label: Path(path).resolve() for label, path in (t.split("=", 1) for t in a.tree)}
     load = [round(v, 2) for v in os.getloadavg()]
     rows = []
@@ -192,11 +198,11 @@ def main() -> None:
                 print(f"{Path(config).stem:28s} {what}, s: " + "  ".join(
                     f"{label} " + ", ".join(f"{r['run_close_s']:.2f}" for r in row[label]) for label in trees),
                     flush=True)
-    for name, n in [] if a.recorded else CASES:  # the step cases, unless recorded configs were asked for
-        row = run_case(trees, name, n, a.rounds, a.steps)
+    for name, n in [] if a.recorded else cases:  # the step cases, unless recorded configs were asked for
+        row = run_case(trees, name, n, a.rounds, a.steps, a.metrics_every)
         rows.append(row)
         first = next(iter(trees))
-        print(f"{Path(name).stem:28s} N={n:5d} " + "  ".join(
+        print(f"{Path(name).stem:28s} N={n:7d} " + "  ".join(
             f"{label} {row[label]['median']:.3f} ({row[label]['min']:.3f}-{row[label]['max']:.3f})"
             f" {row['speedup_over_' + first][label]:.2f}x" for label in trees), flush=True)
     if a.out is not None:
