@@ -208,8 +208,8 @@ def box_counts(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int
 
 
 def _count_boxes(pos: ti.Ndarray, ids: ti.Ndarray, per_replica: int, replicas: int, box: float, m: int,
-                 counts: ti.Ndarray | None, profile: tuple[Sequence[int], int, tuple[ti.Ndarray, ti.Ndarray]] | None
-                 = None) -> ti.Ndarray:
+                 counts: ti.Ndarray | None,
+                 profile: tuple[Sequence[int], int, tuple[ti.Ndarray, ti.Ndarray]] | None = None) -> ti.Ndarray:
     """:func:`box_counts`' kernel: the partial tables, filled; with `profile` = (axes, bins, buffers), also
     :func:`axis_profile`'s in its buffers, in the same pass."""
     dim, n = pos.shape
@@ -379,7 +379,7 @@ class TransitionObservables:
         return {"band_profile": hist * (self.bins / self.n)}
 
     def _finest_counts(self, pos: ti.Ndarray, ids: ti.Ndarray, mean_direction: np.ndarray,
-                    state: Hashable | None) -> tuple[np.ndarray, np.ndarray | None]:
+                       state: Hashable | None) -> tuple[np.ndarray, np.ndarray | None]:
         """:func:`box_counts` at the finest level, and :meth:`profiles`' slab counts where a kernel counts them in
         the same pass (else None: a small swarm's NumPy counts)."""
         m = self.levels[-1]

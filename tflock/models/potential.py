@@ -444,9 +444,9 @@ def _lane_r2(k, p, dim: ti.template(), pos_sorted: ti.template()):
 
 
 # The metrics' sums over a span of candidates, for LANES agents at once (p: (dim, LANES), a column an agent with id
-# ids[q]), in loops of their own beside _accelerations': one loop carrying the accelerations and all these sums ran
-# several times slower than the loops apart. Each loop has an exit that never fires, which keeps LLVM's loop
-# vectoriser off it, as in _accelerations.
+# ids[q]), in the components pass's loops, not in _accelerations': one loop carrying the accelerations and all these
+# sums ran several times slower than the loops apart (the valencies alone ride in it, _counted_accelerations). Each
+# loop has an exit that never fires, which keeps LLVM's loop vectoriser off it, as in _accelerations.
 
 @ti.func
 def _pair_terms(r2, inside, count, pot, product, near, inv_r2cut, d2, v_cut):
