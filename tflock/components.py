@@ -237,6 +237,19 @@ def pair_union(n, r2, box, nc, n_buckets, strict: ti.template(), layout: ti.temp
                parent: ti.template(), pairs: ti.template()):
     """The pairs pass (see the module) on a model's grid: each slot joins its neighbours at smaller slots;
     ``pairs[s]``: how many there are (their sum is the number of edges)."""
+    _pair_walk(n, 0.0, r2, box, nc, n_buckets, strict, layout, dim, start, mixed, pos_sorted, coords_sorted, pairs,
+               parent, pairs, pairs, False)
+
+
+@ti.func
+def _pair_walk(n, radius, r2, box, nc, n_buckets, strict: ti.template(), layout: ti.template(), dim: ti.template(),
+               start: ti.template(), mixed: ti.template(), pos_sorted: ti.template(), coords_sorted: ti.template(),
+               id_sorted: ti.template(), parent: ti.template(), pairs: ti.template(), degree: ti.template(),
+               degrees: ti.template()):
+    """:func:`pair_union`; where `degrees`, in the same walk over every slot's whole stencil, also each agent's
+    degree (tflock.metrics' ``_count_degrees``: its neighbours within `radius`, itself excluded, agent order), where
+    two passes would each walk it: the same unions in the same order (the neighbours at smaller slots, within `r2`),
+    and the same counts. Without `degrees` only the neighbours at smaller slots are visited."""
     for s in range(n):
         parent[s] = s
     for s in range(n):
@@ -244,16 +257,30 @@ def pair_union(n, r2, box, nc, n_buckets, strict: ti.template(), layout: ti.temp
         c = load_cell(coords_sorted, s, dim)
         root = s  # a recent root of s's set: saves walking s's chain for every neighbour
         count = 0
+        neighbours = 0
         for o in range(ti.static(span_count(layout, dim))):
             lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
             begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
-            for k in range(begin, ti.min(end, s)):
+            last = ti.min(end, s)
+            if ti.static(degrees):
+                last = end
+            for k in range(begin, last):
                 d2 = displacement(p, load_vec(pos_sorted, k, dim), box, layout).norm_sqr()
-                if near(d2, r2, strict) and (check == 0 or same_cell(coords_sorted, k, cell, layout, dim) == 1):
+                same = 1
+                if check != 0:
+                    same = same_cell(coords_sorted, k, cell, layout, dim)
+                if ti.static(degrees):
+                    w = ti.select(d2 <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
+                    if ti.static(layout == OPEN):  # as the degree pass tests it
+                        w *= same
+                    neighbours += w
+                if k < s and near(d2, r2, strict) and same == 1:
                     count += 1
                     if parent[k] != root:  # k already hangs under s's root: nothing to merge
                         root = union(parent, root, k)
         pairs[s] = count
+        if ti.static(degrees):
+            degree[id_sorted[s]] = neighbours
 
 
 @ti.kernel
@@ -262,36 +289,9 @@ def _pair_union_degrees(n: ti.i32, radius: float, r2: float, box: float, nc: ti.
                         mixed: ti.types.ndarray(), pos_sorted: ti.types.ndarray(), coords_sorted: ti.types.ndarray(),
                         id_sorted: ti.types.ndarray(), parent: ti.types.ndarray(), pairs: ti.types.ndarray(),
                         degree: ti.types.ndarray()):
-    """:func:`pair_union` and each agent's degree (tflock.metrics' ``_count_degrees``: its neighbours within
-    ``radius``, itself excluded, agent order) in one pass over every slot's whole stencil, where the two passes
-    each walked it: the same unions in the same order (the neighbours at smaller slots, within `r2`), and the
-    same counts."""
-    for s in range(n):
-        parent[s] = s
-    for s in range(n):
-        p = load_vec(pos_sorted, s, dim)
-        c = load_cell(coords_sorted, s, dim)
-        root = s
-        count = 0
-        neighbours = 0
-        for o in range(ti.static(span_count(layout, dim))):
-            lo, hi, cell = stencil_span(c, o, nc, n_buckets, layout, dim)
-            begin, end, check = span_agents(lo, hi, cell, start, mixed, coords_sorted, layout, dim)
-            for k in range(begin, end):
-                d2 = displacement(p, load_vec(pos_sorted, k, dim), box, layout).norm_sqr()
-                same = 1
-                if check != 0:
-                    same = same_cell(coords_sorted, k, cell, layout, dim)
-                w = ti.select(d2 <= radius * radius, 1, 0) * ti.select(k != s, 1, 0)
-                if ti.static(layout == OPEN):  # as the degree pass tests it
-                    w *= same
-                neighbours += w
-                if k < s and near(d2, r2, strict) and same == 1:
-                    count += 1
-                    if parent[k] != root:
-                        root = union(parent, root, k)
-        pairs[s] = count
-        degree[id_sorted[s]] = neighbours
+    """:func:`_pair_walk` with the degrees."""
+    _pair_walk(n, radius, r2, box, nc, n_buckets, strict, layout, dim, start, mixed, pos_sorted, coords_sorted,
+               id_sorted, parent, pairs, degree, True)
 
 
 #: slots per task of :func:`_pair_sizes`: a run of slots with one root adds its length at once

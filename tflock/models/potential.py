@@ -463,31 +463,20 @@ def _pair_terms(r2, inside, count, pot, product, near, inv_r2cut, d2, v_cut):
 
 
 @ti.func
-def _pair_sums(begin, end, ids, p, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template(),
-               id_sorted: ti.template(), pos_sorted: ti.template()):
-    """:func:`_pair_terms` of the candidates [begin, end) within R."""
+def _pair_sums(begin, end, ids, p, label, other, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut,
+               dim: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), parent: ti.template(),
+               labelled: ti.template()):
+    """:func:`_pair_terms` of the candidates [begin, end) within R; where `labelled` (candidates in the stripe before
+    the block, settled) each also folds its set label into the lanes it is near (the components,
+    :mod:`tflock.lane_graph`)."""
     for k in range(begin, end):
         j = id_sorted[k]
         if j < 0:  # never: ids count from 0
             break
         r2 = _lane_r2(k, p, dim, pos_sorted)
-        count, pot, product, near = _pair_terms(r2, (r2 < r2cut) & (ids != j), count, pot, product, near, inv_r2cut,
-                                                d2, v_cut)
-    return count, pot, product, near
-
-
-@ti.func
-def _pair_labels(begin, end, ids, p, label, other, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut,
-                 dim: ti.template(), id_sorted: ti.template(), pos_sorted: ti.template(), parent: ti.template()):
-    """:func:`_pair_sums` of the candidates [begin, end), in the stripe before the block and settled, which also
-    fold their set labels into each lane they are near (the components, :mod:`tflock.lane_graph`)."""
-    for k in range(begin, end):
-        j = id_sorted[k]
-        if j < 0:  # never
-            break
-        r2 = _lane_r2(k, p, dim, pos_sorted)
         inside = (r2 < r2cut) & (ids != j)
-        label, other = fold_label(label, other, inside, parent[k])
+        if ti.static(labelled):
+            label, other = fold_label(label, other, inside, parent[k])
         count, pot, product, near = _pair_terms(r2, inside, count, pot, product, near, inv_r2cut, d2, v_cut)
     return label, other, count, pot, product, near
 
@@ -575,11 +564,12 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
             near = ti.Vector([r2cut] * LANES)
             for r in range(ti.static(3 ** (dim - 1))):  # the candidates before the block
                 begin, end, _, _ = run_spans(row, x0, x1, r, nc, start, layout, dim)
-                count, pot, product, near = _pair_sums(begin, ti.min(end, s_lo), ids, p, count, pot, product, near,
-                                                       r2cut, inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted)
-                label, other, count, pot, product, near = _pair_labels(
+                label, other, count, pot, product, near = _pair_sums(  # the earlier stripes' candidates
+                    begin, ti.min(end, s_lo), ids, p, label, other, count, pot, product, near, r2cut, inv_r2cut, d2,
+                    v_cut, dim, id_sorted, pos_sorted, parent, False)
+                label, other, count, pot, product, near = _pair_sums(  # this stripe's, settled: their labels too
                     ti.max(begin, s_lo), ti.min(end, i0), ids, p, label, other, count, pot, product, near, r2cut,
-                    inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted, parent)
+                    inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted, parent, True)
                 if (product < PRODUCT_FLOOR).any():  # its log, before the next span's factors could underflow it
                     logs += ti.log(product)
                     product = ti.Vector([1.0] * LANES, dt=ti.f64)

@@ -56,11 +56,15 @@ from tflock.lane_graph import (
     stripe_range,
 )
 from tflock.metrics import (
+    BLOCK as SUM_BLOCK,
+)
+from tflock.metrics import (
     EXACT_PAIRS_MAX,
     SAMPLED_PAIRS,
     NeighbourGraph,
     heading_order,
     mean,
+    n_blocks,
     orders_and_pairs,
     pairwise_errors,
     replica_pairwise_errors,
@@ -427,9 +431,10 @@ def _list_sums(n: ti.i32, k: ti.template(), rule: ti.template(), nbr: ti.types.n
 @ti.kernel
 def _lane_totals(n: ti.i32, payload: ti.types.ndarray(), sums: ti.types.ndarray(), turn: ti.types.ndarray(),
                  updated: ti.types.ndarray(), partial: ti.types.ndarray()):
-    """What the lane-wise metrics add up, per block of TOTALS_BLOCK agents, in f64: partial[b] = (sum cos theta,
-    sum sin theta, sum of the neighbour counts 1 + n_i, their max, sum |dtheta|, agents updated); the blocks are
-    fixed, so their sum does not depend on the thread count. One pass over the five arrays, where NumPy took five."""
+    """What the lane-wise metrics add up, per block of tflock.metrics' BLOCK agents, in f64: partial[b] = (sum cos
+    theta, sum sin theta, sum of the neighbour counts 1 + n_i, their max, sum |dtheta|, agents updated); the blocks
+    are fixed, so their sum does not depend on the thread count. One pass over the five arrays, where NumPy took
+    five."""
     for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
         blk = task_at(t)
         if blk >= 0:
@@ -439,7 +444,7 @@ def _lane_totals(n: ti.i32, payload: ti.types.ndarray(), sums: ti.types.ndarray(
             most = ti.f64(0.0)
             turned = ti.f64(0.0)
             moved = 0
-            for i in range(blk * TOTALS_BLOCK, ti.min(n, (blk + 1) * TOTALS_BLOCK)):
+            for i in range(blk * SUM_BLOCK, ti.min(n, (blk + 1) * SUM_BLOCK)):
                 c += ti.cast(payload[0, i], ti.f64)
                 s += ti.cast(payload[1, i], ti.f64)
                 k = ti.cast(sums[2, i], ti.f64)
@@ -453,10 +458,6 @@ def _lane_totals(n: ti.i32, payload: ti.types.ndarray(), sums: ti.types.ndarray(
             partial[blk, 3] = most
             partial[blk, 4] = turned
             partial[blk, 5] = ti.cast(moved, ti.f64)
-
-
-#: agents per block of :func:`_lane_totals`
-TOTALS_BLOCK = 16384
 
 
 PLAIN, BEFORE, BLOCK = 0, 1, 2  # candidates of a stripe's block (see _neighbour_sums_graph)
@@ -1170,7 +1171,7 @@ class Vicsek(GridModel):
             return (float(payload[0].sum(dtype=np.float64)), float(payload[1].sum(dtype=np.float64)),
                     float(counts.sum(dtype=np.float64)), float(counts.max()), total(self.turn, n),
                     total(self.updated, n))
-        partial = scratch((-(-n // TOTALS_BLOCK), 6), ti.f64)
+        partial = scratch((n_blocks(n), 6), ti.f64)
         _lane_totals(n, self.payload, self.sums, self.turn, self.updated, partial)
         blocks = host_view(partial)
         c, s, count, _, turned, moved = blocks.sum(axis=0)
