@@ -47,7 +47,7 @@ from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
 from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
-    block_roots,
+    block_roots_vectorised,
     candidate_label,
     fold_label,
     join_candidate,
@@ -571,7 +571,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                             sums[0, i0 + k] = acc_a[k]
                             sums[1, i0 + k] = acc_b[k]
                             sums[2, i0 + k] = count[k]
-                    roots, recheck = block_roots(i1 - i0, label, other, parent, size)
+                    roots, recheck = block_roots_vectorised(i1 - i0, label, other, parent, size)
                     while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
                         bit = recheck & (-recheck)
                         q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
