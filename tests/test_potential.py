@@ -322,6 +322,25 @@ def test_lane_wise_step_equals_per_agent_step(engine, dim):
         assert np.all(np.abs(a - b) <= 8 * ulp * (scale + np.abs(b))), key
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
+def test_lane_wise_pass_reports_each_agents_valency(engine):
+    """The lane-wise pass writes the valencies at the agents' grid slots; the per-agent metrics valency_i are still
+    agent i's, as the oracle counts them, step after step."""
+    cfg = config(n=16, box=3.0, topology="switching", radius=1.2, min_separation=0.0)
+    model = Potential(cfg.params, cfg.seed, engine)
+    assert model.lane_wise
+    for t in range(4):
+        state = model.state()
+        got = model.metrics()
+        assert model._pairs_step[1]  # written in slot order
+        agent_at = model.grid.id_sorted.to_numpy()[:16]
+        assert not np.array_equal(agent_at, np.arange(16))  # the slots are not the agents' order: the test bites
+        expected = ref.potential_metrics(state["x"], state["v"], cfg.params)
+        for i in range(16):
+            assert got[f"valency_{i}"] == expected[f"valency_{i}"], f"agent {i} at step {t}"
+        model.advance(5)
+
+
 def _lane_pass_state(dim, shape):
     """Positions of a sparse field (many small clusters) or a jittered lattice (one dense cluster), several
     stripes of grid layers where they fit, and random velocities."""
@@ -373,15 +392,16 @@ def test_lane_wise_metrics_pass_matches_reference_and_keeps_the_trajectory(engin
         r2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(axis=2)
         np.fill_diagonal(r2, np.inf)
         near = r2 < p.radius**2
-        assert np.array_equal(observed.valency.to_numpy(), near.sum(axis=1)), f"valency at step {t}"
+        agent_at = observed.grid.id_sorted.to_numpy()[:n]  # the pass writes each agent's numbers at its grid slot
+        assert np.array_equal(observed.valency.to_numpy(), near.sum(axis=1)[agent_at]), f"valency at step {t}"
         slot = np.empty(n, dtype=np.int64)  # each agent's grid slot: a pair is summed at its later slot
-        slot[observed.grid.id_sorted.to_numpy()[:n]] = np.arange(n)
+        slot[agent_at] = np.arange(n)
         earlier = near & (slot[None, :] < slot[:, None])
         nearest = np.sqrt(np.where(earlier, r2, p.radius**2).min(axis=1))
-        assert gap(observed.nearest.to_numpy(), nearest) < TOL, f"nearest at step {t}"
+        assert gap(observed.nearest.to_numpy(), nearest[agent_at]) < TOL, f"nearest at step {t}"
         pair_v = p.desired_distance**2 / r2 + np.log(r2) - (p.desired_distance**2 / p.radius**2 + np.log(p.radius**2))
         energy = np.where(earlier, pair_v, 0.0).sum(axis=1)
-        assert gap(observed.energy.to_numpy(), energy) < 10 * TOL, f"energy at step {t}"
+        assert gap(observed.energy.to_numpy(), energy[agent_at]) < 10 * TOL, f"energy at step {t}"
         assert observed.nearest.to_numpy().min() == pytest.approx(np.sqrt(min(r2.min(), p.radius**2)), rel=TOL)
         expected = ref.potential_metrics(state["x"], state["v"], p)
         got = observed.metrics()

@@ -505,7 +505,8 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
                      accel: ti.types.ndarray(), valency: ti.types.ndarray(), serial: ti.template()):
     """The next step's neighbour pass, run for a state whose metrics are taken (as :func:`_step_lanes` takes the
     agents): each agent's u_i (eq. 3) into ``accel`` (slot order; :func:`_move` then makes the step, bit for bit as
-    :func:`_step_lanes`) and its valency |N_i| (agent order), counted in the same loop. `serial`: on the calling
+    :func:`_step_lanes`) and its valency |N_i| (slot order too: written where the agent is, not scattered by id),
+    counted in the same loop. `serial`: on the calling
     thread (a small swarm, :func:`tflock.cpu_tasks.one_thread`)."""
     ti.loop_config(serialize=serial)
     for b in range(total_buckets):
@@ -526,7 +527,7 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
                 if i0 + q < a1:
                     for a in ti.static(range(dim)):
                         accel[a, i0 + q] = u[a, q]
-                    valency[ids[q]] = count[q]
+                    valency[i0 + q] = count[q]
 
 
 @ti.func
@@ -578,8 +579,8 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
             pot = _pair_potentials(count, pot, product, logs, r2cut)
             for q in ti.static(range(LANES)):
                 if i0 + q < a1:
-                    energy[ids[q]] = pot[q]
-                    nearest[ids[q]] = ti.sqrt(near[q])
+                    energy[i0 + q] = pot[q]
+                    nearest[i0 + q] = ti.sqrt(near[q])
             roots, recheck = block_roots(i1 - i0, label, other, parent, size)
             while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
                 bit = recheck & (-recheck)
@@ -603,7 +604,7 @@ def _components_lanes(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i32, 
                       parent: ti.types.ndarray(), size: ti.types.ndarray(), energy: ti.types.ndarray(),
                       nearest: ti.types.ndarray()):
     """The components of the graph |r_ij| < R in ``parent``, ``LANES`` agents at a time (stripes of layers, a stripe
-    a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them), and per agent (agent order) the pairs
+    a task, see :mod:`tflock.lane_graph`; its ``finish`` completes them), and per agent (at its grid slot) the pairs
     within R it makes with the agents at smaller grid slots, each pair once: their saturated potential
     sum (V - V(R)) in ``energy`` (whose total is the potential energy) and the nearest of them in ``nearest``
     (capped at R; the smallest over all agents is the nearest pair's). A block's candidates before it are all in
@@ -913,7 +914,9 @@ class Potential(GridModel):
 
     def invalidate(self) -> None:
         super().invalidate()
-        self._pairs_step = (-1,)  # the step whose pair energies `energy` holds (a tuple: checkpoints leave it out)
+        # the step whose pair arrays `valency`, `energy`, `nearest` hold, and whether they are in grid slot order (the
+        # lane-wise pass's) rather than agent order (a tuple: checkpoints leave it out)
+        self._pairs_step: tuple[int, ...] = (-1,)
         self._totals: tuple[float, ...] | None = None  # _pair_totals() of those energies
         self._components_found: tuple[int, int] | None = None  # (step, components) where the pairs' pass found them
         self._next_step.summed = None
@@ -1048,13 +1051,17 @@ class Potential(GridModel):
     def _pair_energies(self) -> None:
         """Each agent's share of the pair potentials in ``energy`` (half of each of its pairs; on the lane-wise pass
         its pairs with agents at smaller grid slots: the same total) and, switching, ``valency`` and ``nearest``, once
-        per step: the stability guard and the metrics share them."""
-        if self._pairs_step == (self.step_index,):
+        per step: the stability guard and the metrics share them. The lane-wise pass writes them at each agent's
+        grid slot (contiguous stores: scattered by agent id they cost it 8-15 ms at 1e6); their totals do not
+        depend on the order, and :meth:`_agent_valency` puts the valencies in agent order."""
+        if self._pairs_step[0] == self.step_index:
             return
+        in_slots = False
         if self.switching:
             self._ensure_grid()
             g = self.grid.geometry
-            if self.lane_wise and g.boundary == BOUNDED:  # with the next step's sums and the components
+            in_slots = self.lane_wise and g.boundary == BOUNDED
+            if in_slots:  # with the next step's sums and the components
                 self._lane_pairs()
             else:
                 self._grid_pairs(self.valency, self.energy)
@@ -1062,12 +1069,24 @@ class Potential(GridModel):
             p = self.params
             _csr_energy(p.n, p.desired_distance**2, self.dim, self.offsets, self.neighbours, self.pos, self.energy,
                         one_thread(self.neighbours.shape[0]))  # its work: the graph's edges
-        self._pairs_step = (self.step_index,)
+        self._pairs_step = (self.step_index, in_slots)
         self._totals = None
+
+    def _agent_valency(self) -> np.ndarray:
+        """Each agent's valency |N_i|, agent order, from the pair arrays of this step (:meth:`_pair_energies`)."""
+        n = self.params.n
+        if not self.switching:
+            return self.valency_np
+        valency = host_array(self.valency)[:n]
+        if not self._pairs_step[1]:
+            return valency
+        by_agent = np.empty_like(valency)
+        by_agent[host_array(self.grid.id_sorted)[:n]] = valency
+        return by_agent
 
     def _lane_pairs(self) -> None:
         """The lane-wise metrics pass (:func:`_step_sums_lanes`): the next step's accelerations, each agent's
-        valency, energy and nearest distance, and the components, counted here."""
+        valency, energy and nearest distance (at its grid slot), and the components, counted here."""
         p, grid, found = self.params, self.grid, self.components
         g = grid.geometry
         d2, r2cut = p.desired_distance**2, p.radius**2
@@ -1218,7 +1237,7 @@ class Potential(GridModel):
             ids = self.ids.to_numpy()
             agent_speed = np.empty(n)
             agent_speed[ids] = np.sqrt((self.vel.to_numpy().astype(np.float64) ** 2).sum(axis=0))
-            valency = host_array(self.valency) if self.switching else self.valency_np
+            valency = self._agent_valency()
             out.update({f"valency_{i}": float(valency[i]) for i in range(n)})
             out.update({f"speed_{i}": float(agent_speed[i]) for i in range(n)})
         return {name: out[name] for name in self.metric_descriptions}
