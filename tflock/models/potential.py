@@ -482,19 +482,23 @@ def _pair_sums(begin, end, ids, p, label, other, count, pot, product, near, r2cu
 
 
 @ti.func
-def _block_pairs(p, ids, width, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template()):
-    """The block's own pairs, as the candidate loops test them (every lane of a block is a candidate of its run):
-    per lane, the bit mask of the lanes within R of it, itself included (:func:`tflock.lane_graph.settle_block`),
-    and :func:`_pair_terms` of the lanes within R before it in the block (each pair once, at its later lane)."""
+def _block_pairs(i0, i1, ids, p, count, pot, product, near, r2cut, inv_r2cut, d2, v_cut, dim: ti.template(),
+                 id_sorted: ti.template(), pos_sorted: ti.template()):
+    """The block's own pairs (slots [i0, i1)), as the candidate loops test them: per lane, the bit mask of the lanes
+    within R of it, itself included (:func:`tflock.lane_graph.settle_block`), and :func:`_pair_terms` of the lanes
+    within R before it in the block (each pair once, at its later lane). A loop over the block's agents, not
+    LANES unrolled steps: a block holds 6 to 7 agents on average in a sparse swarm."""
     inmask = ti.Vector([1 << q for q in ti.static(range(LANES))])
-    for k in ti.static(range(LANES)):
-        r2 = ti.Vector([(p[0, k] - p[0, q]) * (p[0, k] - p[0, q]) for q in ti.static(range(LANES))])
-        for a in ti.static(range(1, dim)):
-            r2 += ti.Vector([(p[a, k] - p[a, q]) * (p[a, k] - p[a, q]) for q in ti.static(range(LANES))])
-        inside = (r2 < r2cut) & (ids != ids[k])
-        inmask |= ti.select(inside, 1 << k, 0)
-        after = ti.Vector([ti.select(q < width, 1 if q > k else 0, 0) for q in ti.static(range(LANES))]) == 1
-        count, pot, product, near = _pair_terms(r2, inside & after, count, pot, product, near, inv_r2cut, d2, v_cut)
+    slots = ti.Vector([i0 + q for q in ti.static(range(LANES))])
+    for k in range(i0, i1):
+        j = id_sorted[k]
+        if j < 0:  # never: ids count from 0 (an exit that keeps LLVM's loop vectoriser off, as in _accelerations)
+            break
+        r2 = _lane_r2(k, p, dim, pos_sorted)
+        inside = (r2 < r2cut) & (ids != j)
+        inmask |= ti.select(inside, 1 << (k - i0), 0)
+        count, pot, product, near = _pair_terms(r2, inside & (slots > k) & (slots < i1), count, pot, product, near,
+                                                inv_r2cut, d2, v_cut)
     return inmask, count, pot, product, near
 
 
@@ -574,8 +578,8 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
                 if (product < PRODUCT_FLOOR).any():  # its log, before the next span's factors could underflow it
                     logs += ti.log(product)
                     product = ti.Vector([1.0] * LANES, dt=ti.f64)
-            inmask, count, pot, product, near = _block_pairs(p, ids, i1 - i0, count, pot, product, near, r2cut,
-                                                             inv_r2cut, d2, v_cut, dim)
+            inmask, count, pot, product, near = _block_pairs(i0, i1, ids, p, count, pot, product, near, r2cut,
+                                                             inv_r2cut, d2, v_cut, dim, id_sorted, pos_sorted)
             pot = _pair_potentials(count, pot, product, logs, r2cut)
             for q in ti.static(range(LANES)):
                 if i0 + q < a1:
