@@ -167,6 +167,9 @@ def test_runs_pair_turns(monkeypatch, log):
         def build_neighbours(self):
             pass
 
+        def metrics(self):  # the start state's, untimed (bench.start_run)
+            return {}
+
         def advance(self, steps):
             spend(state["ms"] * steps)
 
@@ -205,3 +208,29 @@ def test_results_go_under_results_bench_by_default():
 
     prefix = default_out(0.0)
     assert prefix.parent.as_posix() == "results/bench" and prefix.name.startswith("bench-")
+
+
+def test_a_timed_run_starts_where_a_run_leaves_the_state(engine):
+    """The bench's run starts as `tflock sim` finds a step: where the cadence took the state's metrics, their pass has
+    summed the step's neighbours (the Vicsek model's sums, `potential`'s accelerations), which the step then skips;
+    a timed run without it would sum them once more in its first step."""
+    from tflock.bench import BenchCase, case_config, start_run
+    from tflock.config import load_config
+    from tflock.models.potential import Potential
+    from tflock.models.vicsek import Vicsek
+
+    if engine.arch != "cpu":
+        pytest.skip("the metrics pass sums the next step on the CPU's lane-wise path only")
+    precision = {"precision": engine.precision, "arch": "cpu", "threads": engine.threads}
+    for cls in (Vicsek, Potential):
+        config = load_config({**case_config(BenchCase(model=cls.name, n=6000)), "engine": precision})
+        model = cls(config.params, config.seed, engine)
+        model.advance(1)
+        start = (model.checkpoint(), model.step_index)
+        for metrics_every, frames in ((1, False), (4, True)):  # step 1: no metrics at a cadence of 4
+            start_run(model, start, metrics_every, frames)
+            if cls is Vicsek:
+                summed = model._ready() == 2
+            else:
+                summed = model._next_step.summed == (model.step_index, model.grid.builds)
+            assert summed == (metrics_every == 1), f"{cls.name}, metrics every {metrics_every}"

@@ -284,6 +284,20 @@ class Turns:
     logging_overhead: float | None = None  # with --log: median over turns of (logged run / its turn's run) - 1
 
 
+def start_run(model: Any, start: tuple[Any, int], metrics_every: int, frames: bool) -> None:
+    """Put `model` in the state `start` (a checkpoint and its step) as a run leaves it at that step, before a
+    timed run: its metrics taken where the cadence takes them (the Vicsek and `potential` metrics passes sum the next
+    step's neighbours, which that step then skips) and, with `frames`, its neighbours built for the frame."""
+    import taichi as ti
+
+    model.restore(*start)
+    if model.step_index % metrics_every == 0:
+        model.metrics()
+    if frames:
+        model.build_neighbours()
+    ti.sync()
+
+
 def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) -> Turns:
     """Plain steps against runs of as many steps as ``tflock sim`` runs them: ``Simulation.step`` with metrics
     every `metrics_every` steps (the case's cadence, by default the model's) and the non-finite guard, and with
@@ -292,7 +306,8 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
     ``LOG_TURNS`` turns, each `repeats` plain steps, a run without frames and, with `log`, a logged run, all from
     the case's state (every turn times the same steps: the workload stays the state's). A run is timed whole, until
     Rerun's background threads have written its last frame (timing single logged steps between plain ones hides
-    the background work of a frame, which then overlaps the next plain step). Overheads are medians over turns of a
+    the background work of a frame, which then overlaps the next plain step). A run starts from the state as a run
+    leaves it at the step before (:func:`start_run`, untimed). Overheads are medians over turns of a
     run against its own turn's plain steps (or a logged run against its turn's run), which cancels the drift of a
     shared machine between turns."""
     import taichi as ti
@@ -303,10 +318,7 @@ def _plain_and_run_steps(sim: Any, repeats: int, metrics_every: int, log: bool) 
     runs, run_ratios, logged, log_ratios = [], [], [], []
 
     def timed_run(frames: bool) -> float:
-        model.restore(*start)
-        if frames:
-            model.build_neighbours()  # as the frame of the step before would have
-        ti.sync()
+        start_run(model, start, metrics_every, frames)
         log_config.every = 1 if frames else METRICS_NEVER
         log_config.metrics_every = metrics_every
         try:
