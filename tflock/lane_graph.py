@@ -170,9 +170,9 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
     stripe (-1: none near), from :func:`fold_label`'s labels, and the bit mask of the lanes whose candidates carried
     two labels: the caller re-reads their candidates, joins each one's set with :func:`join_candidate` and puts the
     root in their place. As :func:`block_roots`, with the lanes taken as vectors and bit masks instead of a branch
-    and a root walk per lane: the faster form in the Vicsek model's pass, whose labels are nearly always roots
-    (47 against 53 ms at 1e6 after 300 steps, the same from the uniform start); `potential`'s pass, compiled with it,
-    timed 3-6 ms slower, and keeps :func:`block_roots`."""
+    and a root walk per lane: the faster form in the Vicsek model's pass, whose labels (grandparents) are nearly
+    always roots; `potential`'s pass (labels: parents) timed slower with it and keeps :func:`block_roots`
+    (docs/performance.md)."""
     lane = ti.Vector([q for q in ti.static(range(LANES))])
     has = (lane < width) & (label != NO_LABEL)
     roots = _roots_of(label, has, parent)
@@ -187,7 +187,7 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
             a = _join(parent, size, a, b)
         roots[q] = a
         joins &= joins - 1
-    recheck = 0  # (a loop with a branch per lane: as bit operations on the vectors, LLVM slowed Vicsek's pass 3x)
+    recheck = 0  # (a branch per lane here: from bit operations on the vectors, LLVM compiled Vicsek's pass slower)
     for q in ti.static(range(LANES)):
         if q < width:
             if label[q] != NO_LABEL:

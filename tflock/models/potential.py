@@ -510,8 +510,7 @@ def _step_sums_lanes(total_buckets: ti.i32, nc: ti.i32, r2cut: float, d2: float,
     """The next step's neighbour pass, run for a state whose metrics are taken (as :func:`_step_lanes` takes the
     agents): each agent's u_i (eq. 3) into ``accel`` (slot order; :func:`_move` then makes the step, bit for bit as
     :func:`_step_lanes`) and its valency |N_i| (slot order too: written where the agent is, not scattered by id),
-    counted in the same loop. `serial`: on the calling
-    thread (a small swarm, :func:`tflock.cpu_tasks.one_thread`)."""
+    counted in the same loop. `serial`: on the calling thread (a small swarm, :func:`tflock.cpu_tasks.one_thread`)."""
     ti.loop_config(serialize=serial)
     for b in range(total_buckets):
         row, x0, x1, a0, a1 = run_at(b, nc, start, run_end)
@@ -1056,8 +1055,8 @@ class Potential(GridModel):
         """Each agent's share of the pair potentials in ``energy`` (half of each of its pairs; on the lane-wise pass
         its pairs with agents at smaller grid slots: the same total) and, switching, ``valency`` and ``nearest``, once
         per step: the stability guard and the metrics share them. The lane-wise pass writes them at each agent's
-        grid slot (contiguous stores: scattered by agent id they cost it 8-15 ms at 1e6); their totals do not
-        depend on the order, and :meth:`_agent_valency` puts the valencies in agent order."""
+        grid slot (contiguous stores, not scattered by agent id); their totals do not depend on the order, and
+        :meth:`_agent_valency` puts the valencies in agent order."""
         if self._pairs_step[0] == self.step_index:
             return
         in_slots = False
