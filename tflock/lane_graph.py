@@ -197,10 +197,13 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
 
 
 @ti.func
-def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
+def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.template(), vectorised: ti.template()):
     """Settle the block's lanes (slots i0 .. i0 + width - 1): the lanes within R of each other (bits of `inmask`,
     itself included) form the block's own components, found by doubling bit masks; each such component joins the
-    roots its lanes found (`roots`, -1 for none) into one set, or starts a set rooted at its first lane."""
+    roots its lanes found (`roots`, -1 for none) into one set, or starts a set rooted at its first lane. Where they
+    found different sets, or none, by :func:`_settle_components` or, where `vectorised`,
+    :func:`_settle_components_vectorised`: `potential`'s pass is the faster with the second, Vicsek's with the
+    first (docs/performance.md)."""
     same = True  # every lane found the same set: it is theirs (the common case inside a flock)
     for q in ti.static(range(1, LANES)):
         if q < width:
@@ -210,19 +213,29 @@ def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.templ
             if q < width:
                 parent[i0 + q] = roots[0]
         size[roots[0]] += width
+    elif ti.static(vectorised):
+        _settle_components_vectorised(i0, width, roots, inmask, parent, size)
     else:
         _settle_components(i0, width, roots, inmask, parent, size)
 
 
 @ti.func
-def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
-    """:func:`settle_block` where the lanes found different sets, or none."""
+def _block_components(width, inmask):
+    """Per lane of a block of `width` lanes, the bit mask of its component among them (`inmask`: each lane's lanes
+    within R, itself included), by doubling: after round k, every lane within 2^k hops."""
     comp = inmask & ((1 << width) - 1)
-    for _ in ti.static(range(LANE_BITS)):  # after round k, every lane within 2^k hops
+    for _ in ti.static(range(LANE_BITS)):
         grown = comp
         for q in ti.static(range(LANES)):
             grown |= ti.select(((comp >> q) & 1) == 1, comp[q], 0)
         comp = grown
+    return comp
+
+
+@ti.func
+def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
+    """:func:`settle_block` where the lanes found different sets, or none."""
+    comp = _block_components(width, inmask)
     joined = ti.Vector([-1] * LANES)  # the set of each component, at its first lane
     for q in ti.static(range(LANES)):
         if q < width and (comp[q] & ((1 << q) - 1)) == 0:
@@ -249,6 +262,43 @@ def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti
         if q < width:
             first = comp[q] & (-comp[q])
             parent[i0 + q] = joined[ti.cast(ti.math.popcnt(first - 1), ti.i32)]
+
+
+@ti.func
+def _settle_components_vectorised(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
+    """:func:`_settle_components` with the lanes taken as vectors: each block component's set is the smallest root
+    its lanes found (the others, few, are joined to it), or a new one at its first lane; the stores go to a selected
+    slot (a lane past `width` stores to lane 0's slot what lane 0 stores) instead of a branch per lane."""
+    valid = ti.Vector([q for q in ti.static(range(LANES))]) < width
+    comp = _block_components(width, inmask)
+    has = valid & (roots >= 0)
+    up = ti.Vector([parent[ti.select(has[q], roots[q], 0)] for q in ti.static(range(LANES))])
+    stale = has & (up != roots)
+    if stale.any():  # a join since block_roots (a recheck, a second label) moved a root
+        for q in ti.static(range(LANES)):
+            if stale[q]:
+                roots[q] = local_root(parent, roots[q])
+    found = ti.select(has, roots, NO_LABEL)
+    best = ti.Vector([NO_LABEL] * LANES)  # per lane, the smallest root its component's lanes found
+    for q in ti.static(range(LANES)):
+        best = ti.min(best, ti.select(((comp >> q) & 1) == 1, found[q], NO_LABEL))
+    joins = (found != NO_LABEL) & (found != best)
+    if joins.any():  # a component near two sets: one set now
+        for q in ti.static(range(LANES)):
+            if joins[q]:
+                a = local_root(parent, best[q])
+                b = local_root(parent, found[q])
+                if a != b:
+                    _join(parent, size, a, b)
+        for q in ti.static(range(LANES)):
+            if best[q] != NO_LABEL:
+                best[q] = local_root(parent, best[q])
+    top = ti.select(best != NO_LABEL, best, i0 + ti.math.popcnt((comp & -comp) - 1))  # new sets: their first lane
+    for q in ti.static(range(LANES)):
+        size[i0 + ti.select(valid[q], q, 0)] = 0  # (a new set's size starts here; the block's other slots are no roots)
+    for q in ti.static(range(LANES)):
+        parent[i0 + ti.select(valid[q], q, 0)] = ti.select(valid[q], top[q], top[0])
+        size[ti.select(valid[q], top[q], top[0])] += ti.select(valid[q], 1, 0)
 
 
 @ti.func

@@ -597,7 +597,7 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
                             root = join_candidate(root, k, parent, size)
                 roots[q] = root
                 recheck ^= bit
-            settle_block(i0, i1 - i0, roots, inmask, parent, size)
+            settle_block(i0, i1 - i0, roots, inmask, parent, size, True)
 
 
 @ti.kernel

@@ -587,7 +587,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                                         root = join_candidate(root, k, parent, size)
                         roots[q] = root
                         recheck ^= bit
-                    settle_block(i0, i1 - i0, roots, inmask, parent, size)
+                    settle_block(i0, i1 - i0, roots, inmask, parent, size, False)
 
 
 @ti.func
