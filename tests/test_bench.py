@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import ARCH
 
 HAS_NUMBA = importlib.util.find_spec("numba") is not None
 
@@ -210,6 +211,7 @@ def test_results_go_under_results_bench_by_default():
     assert prefix.parent.as_posix() == "results/bench" and prefix.name.startswith("bench-")
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the metrics pass sums the next step on the CPU's lane-wise path only")
 def test_a_timed_run_starts_where_a_run_leaves_the_state(engine):
     """The bench's run starts as `tflock sim` finds a step: where the cadence took the state's metrics, their pass has
     summed the step's neighbours (the Vicsek model's sums, `potential`'s accelerations), which the step then skips;
@@ -219,8 +221,6 @@ def test_a_timed_run_starts_where_a_run_leaves_the_state(engine):
     from tflock.models.potential import Potential
     from tflock.models.vicsek import Vicsek
 
-    if engine.arch != "cpu":
-        pytest.skip("the metrics pass sums the next step on the CPU's lane-wise path only")
     precision = {"precision": engine.precision, "arch": "cpu", "threads": engine.threads}
     for cls in (Vicsek, Potential):
         config = load_config({**case_config(BenchCase(model=cls.name, n=6000)), "engine": precision})

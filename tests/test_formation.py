@@ -413,13 +413,12 @@ def test_bad_params_are_clear_errors(override, key):
         load_config(model="formation", overrides=override)
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="host views of ndarrays are the CPU's")
 def test_small_swarm_frame_rows_without_a_launch(engine, monkeypatch):
     """A small swarm's frame rows come from NumPy on the arrays' host memory (CPU): the same frame, and the same
     `where` scratch (checkpoints keep it), as the kernel's (SMALL_SWARM_MAX = 0)."""
     import tflock.taichi_host as taichi_host
 
-    if engine.arch != "cpu":
-        pytest.skip("host views of ndarrays are the CPU's")
     p = small("S-2.2", fail_prob=0.2)
     host, kernel = Formation(p, 4, engine), Formation(p, 4, engine)
     selected = np.array([0, 3, 7, 8, 21, 59])

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PRECISION, assert_same_run
+from conftest import ARCH, PRECISION, assert_same_run
 
 from tflock.config import load_config
 from tflock.models.potential import Potential
@@ -94,6 +94,7 @@ VICSEK_FUSED = [
 ]
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise step is the CPU's")
 @pytest.mark.parametrize("params", VICSEK_FUSED)
 def test_vicsek_fused_steps_match_single_launches(engine, monkeypatch, params):
     """The lane-wise Vicsek step run k steps a launch (_lane_wise_steps) against its launches of one step each
@@ -101,9 +102,6 @@ def test_vicsek_fused_steps_match_single_launches(engine, monkeypatch, params):
     pass sums the next step's neighbours) between runs of 1-30 steps; a batch of 2 replicas too; and a frame's rows,
     which the step writes."""
     import tflock.models.vicsek as vicsek
-
-    if engine.arch != "cpu":
-        pytest.skip("the lane-wise step is the CPU's")
 
     def compared(replicas: int) -> tuple[str, ...]:
         # scratch too: the sums the last step used and, where the metrics pass sorted them, the headings (a batch's
@@ -153,14 +151,13 @@ VICSEK_SERIAL = [
 ]
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the serial launch is the CPU's (one GPU thread would be slow)")
 @pytest.mark.parametrize("params", VICSEK_SERIAL)
 def test_vicsek_serial_steps_match_single_launches(engine, monkeypatch, params):
     """The asynchronous Vicsek step run k steps a launch on one thread (_serial_steps) against its own launches, one
     step and one grid build each (SERIAL_MAX_AGENTS = 0): the same state, past views, cell order and metrics bit for
     bit, with metrics between runs of 1-30 steps, a batch of 2 replicas too; and a frame's rows, which the launch
     writes. The general step's other uses keep one launch a step (see Vicsek._serial)."""
-    if engine.arch != "cpu":
-        pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
     names = ("pos", "theta", "ids", "turn", "updated", "omega", "hist_pos", "hist_theta")
     assert_vicsek_runs_match(engine, monkeypatch, params, "SERIAL_MAX_AGENTS", lambda replicas: names,
                              lambda model: model._serial())
@@ -183,6 +180,7 @@ POTENTIAL_FUSED = [
 ]
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise step is the CPU's")
 @pytest.mark.parametrize("params", POTENTIAL_FUSED)
 def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params):
     """The switching topology's lane-wise step run k steps a launch (_lane_steps) against its launches of one step
@@ -191,8 +189,6 @@ def test_potential_fused_steps_match_single_launches(engine, monkeypatch, params
     stops there and the host's steps take over); and a frame's rows, which the launch writes."""
     import tflock.models.potential as potential
 
-    if engine.arch != "cpu":
-        pytest.skip("the lane-wise step is the CPU's")
     overrides = {f"params.{k}": v for k, v in params.items()}
     overrides.update({"seed": 3, "engine.precision": PRECISION})
     cfg = load_config(model="potential", overrides=overrides)
@@ -225,14 +221,13 @@ FORMATION_SERIAL = [
 
 
 @pytest.mark.parametrize("config,overrides", FORMATION_SERIAL)
+@pytest.mark.skipif(ARCH != "cpu", reason="the serial launch is the CPU's (one GPU thread would be slow)")
 def test_formation_serial_steps_match_single_launches(engine, monkeypatch, config, overrides):
     """The formation step run k steps a launch on one thread (_serial_steps) against its launches of one grid build
     and one step each (SERIAL_MAX_N = 0): the same state, cell order, rules and metrics bit for bit, with metrics
     between runs of 1-30 steps, through steps where no window holds the swarm (the torus's tiling then)."""
     import tflock.models.formation as formation
 
-    if engine.arch != "cpu":
-        pytest.skip("the serial launch is the CPU's (one GPU thread would be slow)")
     cfg = load_config(PAPERS / config, overrides={**overrides, "engine.precision": PRECISION})
     single = formation.Formation(cfg.params, cfg.seed, engine)
     serial = formation.Formation(cfg.params, cfg.seed, engine)
@@ -258,6 +253,7 @@ def test_formation_serial_steps_match_single_launches(engine, monkeypatch, confi
     assert layouts == {WINDOW, PERIODIC}, layouts
 
 
+@pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise launch is the CPU's")
 def test_potential_small_swarm_grid_comes_from_the_steps_launch(engine, monkeypatch):
     """A small switching swarm's grid for its observations (metrics, guard, frame) comes from _lane_steps with no
     step, not from the host's build (whose kernels a run then never loads): the same layout, cells, order and runs
@@ -265,8 +261,6 @@ def test_potential_small_swarm_grid_comes_from_the_steps_launch(engine, monkeypa
     import tflock.models.potential as potential
     import tflock.neighbors as neighbors
 
-    if engine.arch != "cpu":
-        pytest.skip("the lane-wise launch is the CPU's")
     cfg = load_config(model="potential", overrides={"params.n": 60, "params.box": 8.0, "seed": 3,
                                                     "engine.precision": PRECISION})
     launched, hosted = Potential(cfg.params, cfg.seed, engine), Potential(cfg.params, cfg.seed, engine)
@@ -304,6 +298,7 @@ ONE_THREAD = [
 
 
 @pytest.mark.parametrize("model,params", ONE_THREAD)
+@pytest.mark.skipif(ARCH != "cpu", reason="the serialized passes are the CPU's")
 def test_small_swarm_passes_on_one_thread_match_the_thread_pool(engine, make_sim, monkeypatch, model, params):
     """A small swarm's passes run serialized on the calling thread (tflock.cpu_tasks.one_thread): the same states,
     metrics and frame rows, bit for bit, as with every pass handed to the thread pool."""
@@ -311,8 +306,6 @@ def test_small_swarm_passes_on_one_thread_match_the_thread_pool(engine, make_sim
     import tflock.models.vicsek as vicsek
     import tflock.neighbors as neighbors
 
-    if engine.arch != "cpu":
-        pytest.skip("the serialized passes are the CPU's")
     runs, asked = [], []
     for pooled in (False, True):
         with monkeypatch.context() as m:

@@ -24,10 +24,7 @@ def check(engine, x: np.ndarray, boundary: str, box: float, replicas: int = 1) -
     return rings
 
 
-@pytest.fixture(autouse=True)
-def _cpu_only():
-    if ARCH != "cpu":
-        pytest.skip("the lane-wise search runs on the CPU")
+pytestmark = pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise search runs on the CPU")
 
 
 @pytest.mark.parametrize("boundary", BOXES)
