@@ -142,8 +142,6 @@ def _velocity_blocks(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), par
             partial[blk, 2 * dim] = squares
 
 
-#: columns of :func:`_velocity_stats`' partials: sums of v (dim), |v|, |v|^2, v / |v| (dim), |v - mean|, then the
-#: largest |v|, smallest |v| and largest |v - mean|
 @ti.kernel
 def _pair_blocks(n: ti.i32, valency: ti.types.ndarray(), energy: ti.types.ndarray(), nearest: ti.types.ndarray(),
                  partial: ti.types.ndarray()):
@@ -171,6 +169,8 @@ def _pair_blocks(n: ti.i32, valency: ti.types.ndarray(), energy: ti.types.ndarra
             partial[blk, 4] = near
 
 
+#: columns of :func:`_velocity_stats`' partials: sums of v (dim), |v|, |v|^2, v / |v| (dim), |v - mean|, then the
+#: largest |v|, smallest |v| and largest |v - mean|
 def _velocity_columns(dim: int) -> int:
     return 2 * dim + 6
 
@@ -1130,13 +1130,13 @@ class Potential(GridModel):
         return Lyapunov("Q" if self.switching else "W", 0.5 * squares, potential)
 
     def _pair_totals(self) -> tuple[float, ...]:
-        """What the metrics and the guard read of a switching run's per-agent pair arrays, once per step's energies:
+        """What the metrics and the guard read of a switching run's per-agent pair arrays, once per step's arrays:
         the valencies' sum, smallest and largest, the potential energy (the energies' total) and the smallest nearest
         distance. NumPy's on a small swarm's host memory (a launch costs more); above, one pass of
         :func:`_pair_blocks` (NumPy's reductions took a pass each, on one core)."""
         n = self.params.n
         valency = small_host_view(self.valency, n)
-        if valency is not None:  # (not cached: a small swarm's _exact_nearest may rewrite nearest after the pass)
+        if valency is not None:
             valency, nearest = valency[:n], host_view(self.nearest)[:n]
             return (float(valency.sum()), float(valency.min()), float(valency.max()), total(self.energy, n),
                     float(nearest.min()))
@@ -1210,6 +1210,7 @@ class Potential(GridModel):
                 self._grid_pairs(self._grid_valency, self._grid_energy)
         if n <= EXACT_PAIRS_MAX and not self._nearest_exact():
             _exact_nearest(n, self.dim, self.pos, self.nearest, one_thread(n, EXACT_NEAREST_ONE_THREAD))
+            self._totals = None  # (nearest rewritten)
         if self.switching:
             valencies, fewest, most, potential, nearest = self._pair_totals()
             found = self._components_found
