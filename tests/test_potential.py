@@ -439,6 +439,27 @@ def test_small_swarm_velocity_statistics_are_the_kernels(engine, monkeypatch, di
         assert small[name] == pytest.approx(value, rel=1e-12, abs=1e-15), name
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_velocity_statistics_over_several_blocks_are_numpys(engine, dim):
+    """The velocity kernels' lanes and blocks (two blocks, the second ending inside a group of lanes, agents at
+    rest among them) give NumPy's float64 statistics of the same velocities."""
+    from tflock.metrics import BLOCK
+    from tflock.models.potential import velocity_stats
+
+    n = BLOCK + 13
+    cfg = config(n=n, box=200.0, dim=dim, topology="switching")
+    model = Potential(cfg.params, cfg.seed, engine)
+    state = model.state()
+    rng = np.random.default_rng(3)
+    state["v"] = (1.0 + rng.normal(size=state["v"].shape)).astype(state["v"].dtype)
+    state["v"][[0, 5, n - 1]] = 0.0  # at rest: a first lane, a middle one, the last agent
+    model.set_state(state, 0)
+    expected = velocity_stats(model.vel.to_numpy())
+    got = model._velocity_stats()
+    for name, value in expected.items():
+        assert got[name] == pytest.approx(value, rel=1e-12, abs=1e-15), name
+
+
 @pytest.mark.skipif(ARCH != "cpu", reason="the lane-wise metrics pass is the CPU's")
 def test_frame_after_a_metrics_step_is_the_plain_runs(engine):
     """A step after the metrics pass only moves the agents and writes the announced frame's rows: the frame equals

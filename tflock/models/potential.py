@@ -180,48 +180,62 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
                     with_mismatch: ti.template(), partial: ti.types.ndarray()):
     """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
     headings of the velocities; with `with_mismatch`, only |v_i - centre| (centre: the mean velocity, from a first
-    launch whose columns it leaves as they are). The blocks are added in NumPy: the same whatever the threads."""
+    launch whose columns it leaves as they are). ``LANES`` agents at a time, each lane summing its own agents, the
+    lanes added at the block's end (a loop over single agents stays scalar: LLVM does not vectorise its float64
+    max and min). The blocks are added in NumPy: the same whatever the threads."""
+    lane = ti.Vector([q for q in ti.static(range(LANES))])
+    zeros = ti.Vector([0.0] * LANES, dt=ti.f64)
     for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
         blk = task_at(t)
         if blk >= 0:
             lo = blk * BLOCK
             hi = ti.min(n, lo + BLOCK)
-            total = ti.Vector([0.0] * dim, dt=ti.f64)
-            unit = ti.Vector([0.0] * dim, dt=ti.f64)
-            speeds = ti.cast(0.0, ti.f64)
-            squares = ti.cast(0.0, ti.f64)
-            gaps = ti.cast(0.0, ti.f64)
-            fast = ti.cast(0.0, ti.f64)
-            slow = ti.cast(math.inf, ti.f64)
-            widest = ti.cast(0.0, ti.f64)
-            c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
-            for i in range(lo, hi):
-                v = ti.Vector([ti.cast(vel[a, i], ti.f64) for a in ti.static(range(dim))])
+            total = ti.Matrix([[0.0] * LANES for _ in ti.static(range(dim))], dt=ti.f64)
+            unit = ti.Matrix([[0.0] * LANES for _ in ti.static(range(dim))], dt=ti.f64)
+            speeds = zeros
+            squares = zeros
+            gaps = zeros
+            fast = zeros
+            slow = ti.Vector([math.inf] * LANES, dt=ti.f64)
+            widest = zeros
+            for k in range((hi - lo + LANES - 1) // LANES):
+                i0 = lo + k * LANES
+                valid = lane < hi - i0  # lanes past the block's agents count nothing
+                v = ti.Matrix([[ti.select(valid[q], ti.cast(vel[a, ti.min(i0 + q, hi - 1)], ti.f64), 0.0)
+                                for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
                 if ti.static(with_mismatch):
-                    gap = (v - c).norm()
+                    gap = zeros
+                    for a in ti.static(range(dim)):
+                        d = ti.Vector([v[a, q] for q in ti.static(range(LANES))]) - ti.cast(centre[a], ti.f64)
+                        gap += d * d
+                    gap = ti.select(valid, ti.sqrt(gap), 0.0)
                     gaps += gap
                     widest = ti.max(widest, gap)
                 else:
-                    sq = v.norm_sqr()
+                    sq = zeros
+                    for a in ti.static(range(dim)):
+                        sq += ti.Vector([v[a, q] * v[a, q] for q in ti.static(range(LANES))])
                     speed = ti.sqrt(sq)
-                    total += v
+                    per = 1.0 / ti.select(speed > 0, speed, 1.0)  # (v is 0 where the speed is)
+                    for a in ti.static(range(dim)):
+                        for q in ti.static(range(LANES)):
+                            total[a, q] += v[a, q]
+                            unit[a, q] += v[a, q] * per[q]
                     squares += sq
                     speeds += speed
-                    if speed > 0:
-                        unit += v / speed
                     fast = ti.max(fast, speed)
-                    slow = ti.min(slow, speed)
+                    slow = ti.min(slow, ti.select(valid, speed, math.inf))
             if ti.static(with_mismatch):
-                partial[blk, 2 * dim + 2] = gaps
-                partial[blk, 2 * dim + 5] = widest
+                partial[blk, 2 * dim + 2] = gaps.sum()
+                partial[blk, 2 * dim + 5] = widest.max()
             else:
                 for a in ti.static(range(dim)):
-                    partial[blk, a] = total[a]
-                    partial[blk, dim + 2 + a] = unit[a]
-                partial[blk, dim] = speeds
-                partial[blk, dim + 1] = squares
-                partial[blk, 2 * dim + 3] = fast
-                partial[blk, 2 * dim + 4] = slow
+                    partial[blk, a] = ti.Vector([total[a, q] for q in ti.static(range(LANES))]).sum()
+                    partial[blk, dim + 2 + a] = ti.Vector([unit[a, q] for q in ti.static(range(LANES))]).sum()
+                partial[blk, dim] = speeds.sum()
+                partial[blk, dim + 1] = squares.sum()
+                partial[blk, 2 * dim + 3] = fast.max()
+                partial[blk, 2 * dim + 4] = slow.min()
 
 
 @ti.func
