@@ -378,6 +378,38 @@ def wait_for_handler(pid: int, signum: int, timeout: float = 30.0) -> None:
         time.sleep(0.002)
 
 
+#: runs the entry point with `tflock --help`, a SIGTERM raised in the process at one moment of the handover from the
+#: start-up handlers to the run's: just before the first run handler is set, or just after it is
+HANDOVER_INTERRUPT = """
+import signal, sys
+import tflock.__main__ as entry_point
+real, when = signal.signal, sys.argv[1]
+def signal_then_set(signum, handler):
+    if handler is signal.default_int_handler and when == "before":
+        signal.raise_signal(signal.SIGTERM)  # the start-up handler holds it
+    previous = real(signum, handler)
+    if handler is signal.default_int_handler and when == "after":
+        signal.raise_signal(signal.SIGTERM)  # KeyboardInterrupt on the way out of signal.signal
+    return previous
+signal.signal = signal_then_set
+sys.argv = ["tflock", "--help"]
+entry_point.entry()
+"""
+
+
+@pytest.mark.parametrize("when", ["before", "after"])
+def test_interrupt_while_the_handlers_change_is_clean(tmp_path: Path, when: str) -> None:
+    """A SIGTERM that arrives as the entry point swaps its start-up handlers for the run's ends the process with exit
+    code 130 and no traceback, instead of being lost (held by a start-up handler nobody reads any more) or escaping
+    as a KeyboardInterrupt outside the run's handling (a clean-clone CI run of 2026-11-27 failed the test below so, at
+    0.3 s)."""
+    proc = subprocess.run([sys.executable, "-c", HANDOVER_INTERRUPT, when], cwd=tmp_path, stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 130, proc.stderr
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert "Usage" not in proc.stdout  # the command did not run
+
+
 @pytest.mark.parametrize("delay", [0.1, 0.2, 0.3, 1.2, 2.0, 3.0, 4.5])
 def test_interrupt_at_any_point_is_clean(tmp_path: Path, delay: float) -> None:
     """SIGTERM at points from start-up into the step loop: exit 130, one clean message, and any recording written

@@ -17,12 +17,12 @@ def entry() -> None:
     signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     from tflock.cli import main
 
-    if held:
-        print("interrupted during start-up", file=sys.stderr)
-        raise SystemExit(130)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
+    try:  # (an interrupt while the handlers change is caught too)
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if held:  # held while the CLI loaded, or before its handlers were in place
+            print("interrupted during start-up", file=sys.stderr)
+            raise SystemExit(130)
         main()
     except KeyboardInterrupt:
         code: object = 130
