@@ -220,22 +220,38 @@ def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.templ
 
 
 @ti.func
-def _block_components(width, inmask):
+def _block_components(width, inmask, until_stable: ti.template()):
     """Per lane of a block of `width` lanes, the bit mask of its component among them (`inmask`: each lane's lanes
-    within R, itself included), by doubling: after round k, every lane within 2^k hops."""
+    within R, itself included), by doubling: after round k, every lane within 2^k hops. Where `until_stable`, the
+    rounds stop at the first that adds nothing (most blocks: one, when each component's lanes are all within R of
+    each other), else all LANE_BITS of them run: the per-lane settle is the faster with the first, the vector
+    settle with the second (docs/performance.md)."""
     comp = inmask & ((1 << width) - 1)
-    for _ in ti.static(range(LANE_BITS)):
-        grown = comp
-        for q in ti.static(range(LANES)):
-            grown |= ti.select(((comp >> q) & 1) == 1, comp[q], 0)
-        comp = grown
+    if ti.static(until_stable):
+        growing = True
+        while growing:
+            grown = _grown(comp)
+            growing = (grown != comp).any()
+            comp = grown
+    else:
+        for _ in ti.static(range(LANE_BITS)):
+            comp = _grown(comp)
     return comp
+
+
+@ti.func
+def _grown(comp):
+    """One doubling round of :func:`_block_components`: each lane's mask joined with those of the lanes in it."""
+    grown = comp
+    for q in ti.static(range(LANES)):
+        grown |= ti.select(((comp >> q) & 1) == 1, comp[q], 0)
+    return grown
 
 
 @ti.func
 def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti.template()):
     """:func:`settle_block` where the lanes found different sets, or none."""
-    comp = _block_components(width, inmask)
+    comp = _block_components(width, inmask, True)
     joined = ti.Vector([-1] * LANES)  # the set of each component, at its first lane
     for q in ti.static(range(LANES)):
         if q < width and (comp[q] & ((1 << q) - 1)) == 0:
@@ -270,7 +286,7 @@ def _settle_components_vectorised(i0, width, roots, inmask, parent: ti.template(
     its lanes found (the others, few, are joined to it), or a new one at its first lane; the stores go to a selected
     slot (a lane past `width` stores to lane 0's slot what lane 0 stores) instead of a branch per lane."""
     valid = ti.Vector([q for q in ti.static(range(LANES))]) < width
-    comp = _block_components(width, inmask)
+    comp = _block_components(width, inmask, False)
     has = valid & (roots >= 0)
     up = ti.Vector([parent[ti.select(has[q], roots[q], 0)] for q in ti.static(range(LANES))])
     stale = has & (up != roots)
