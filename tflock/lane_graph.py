@@ -177,8 +177,11 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
     has = (lane < width) & (label != NO_LABEL)
     roots = _roots_of(label, has, parent)
     second = has & (other != NO_LABEL) & (other != MIXED)
-    others = _roots_of(other, second, parent)
-    joins = _bits(second & (others != roots))
+    joins = 0
+    others = roots
+    if second.any():  # (few lanes see two labels)
+        others = _roots_of(other, second, parent)
+        joins = _bits(second & (others != roots))
     while joins != 0:  # two sets near one lane: one set now
         q = _lowest_lane(joins)
         a = local_root(parent, roots[q])  # (an earlier join of this block may have moved it)
