@@ -142,8 +142,8 @@ def _bits(mask):
 
 
 @ti.func
-def _lowest_lane(bits):
-    """Index of the lowest set bit of `bits` (nonzero)."""
+def lowest_lane(bits):
+    """Index of the lowest set bit of `bits` (nonzero; element-wise on a vector of masks)."""
     return ti.cast(ti.math.popcnt((bits & -bits) - 1), ti.i32)
 
 
@@ -158,7 +158,7 @@ def _roots_of(slots, has, parent: ti.template()):
     roots = ti.select(has, up, -1)
     deep = _bits(has & (top != up))
     while deep != 0:
-        q = _lowest_lane(deep)
+        q = lowest_lane(deep)
         roots[q] = local_root(parent, top[q])
         deep &= deep - 1
     return roots
@@ -183,7 +183,7 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
         others = _roots_of(other, second, parent)
         joins = _bits(second & (others != roots))
     while joins != 0:  # two sets near one lane: one set now
-        q = _lowest_lane(joins)
+        q = lowest_lane(joins)
         a = local_root(parent, roots[q])  # (an earlier join of this block may have moved it)
         b = local_root(parent, others[q])
         if a != b:
@@ -261,15 +261,14 @@ def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti
             r = -1
             m = comp[q]
             while m != 0:
-                bit = m & (-m)
-                other = roots[ti.cast(ti.math.popcnt(bit - 1), ti.i32)]
+                other = roots[lowest_lane(m)]
                 if other >= 0:
                     other = local_root(parent, other)
                     if r < 0:
                         r = other
                     elif other != r:
                         r = _join(parent, size, r, other)
-                m ^= bit
+                m &= m - 1
             lanes_in = ti.cast(ti.math.popcnt(comp[q]), ti.i32)
             if r < 0:
                 r = i0 + q
@@ -279,8 +278,7 @@ def _settle_components(i0, width, roots, inmask, parent: ti.template(), size: ti
             joined[q] = r
     for q in ti.static(range(LANES)):
         if q < width:
-            first = comp[q] & (-comp[q])
-            parent[i0 + q] = joined[ti.cast(ti.math.popcnt(first - 1), ti.i32)]
+            parent[i0 + q] = joined[lowest_lane(comp[q])]
 
 
 @ti.func
@@ -312,7 +310,8 @@ def _settle_components_vectorised(i0, width, roots, inmask, parent: ti.template(
         for q in ti.static(range(LANES)):
             if best[q] != NO_LABEL:
                 best[q] = local_root(parent, best[q])
-    top = ti.select(best != NO_LABEL, best, i0 + ti.math.popcnt((comp & -comp) - 1))  # new sets: their first lane
+    # new sets: their first lane (lowest_lane's form, its cast on a vector, timed 0.5 ms slower in potential's pass)
+    top = ti.select(best != NO_LABEL, best, i0 + ti.math.popcnt((comp & -comp) - 1))
     for q in ti.static(range(LANES)):
         size[i0 + ti.select(valid[q], q, 0)] = 0  # (a new set's size starts here; the block's other slots are no roots)
     for q in ti.static(range(LANES)):

@@ -44,6 +44,7 @@ from tflock.lane_graph import (
     count_roots,
     fold_label,
     join_candidate,
+    lowest_lane,
     settle_block,
     stripe_range,
 )
@@ -600,8 +601,7 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
                     nearest[i0 + q] = ti.sqrt(near[q])
             roots, recheck = block_roots(i1 - i0, label, other, parent, size)
             while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
-                bit = recheck & (-recheck)
-                q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                q = lowest_lane(recheck)
                 here = load_vec(pos_sorted, i0 + q, dim)
                 root = -1
                 for r in range(ti.static(3 ** (dim - 1))):
@@ -610,7 +610,7 @@ def _stripe_components(j, n_stripes, layers, layer_buckets, nc, r2cut, d2, v_cut
                         if (load_vec(pos_sorted, k, dim) - here).norm_sqr() < r2cut:
                             root = join_candidate(root, k, parent, size)
                 roots[q] = root
-                recheck ^= bit
+                recheck &= recheck - 1
             settle_block(i0, i1 - i0, roots, inmask, parent, size, True)
 
 

@@ -51,6 +51,7 @@ from tflock.lane_graph import (
     candidate_label,
     fold_label,
     join_candidate,
+    lowest_lane,
     settle_block,
     span_labels,
     stripe_range,
@@ -573,8 +574,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                             sums[2, i0 + k] = count[k]
                     roots, recheck = block_roots_vectorised(i1 - i0, label, other, parent, size)
                     while recheck != 0:  # lanes near candidates of two sets: join each near candidate's set
-                        bit = recheck & (-recheck)
-                        q = ti.cast(ti.math.popcnt(bit - 1), ti.i32)
+                        q = lowest_lane(recheck)
                         p = ti.Vector([pos_sorted[0, i0 + q], pos_sorted[1, i0 + q]])
                         root = -1
                         for r in range(3):
@@ -586,7 +586,7 @@ def _neighbour_sums_graph(n_stripes: ti.i32, layers: ti.i32, layer_buckets: ti.i
                                     if d.norm_sqr() <= r2:
                                         root = join_candidate(root, k, parent, size)
                         roots[q] = root
-                        recheck ^= bit
+                        recheck &= recheck - 1
                     settle_block(i0, i1 - i0, roots, inmask, parent, size, False)
 
 
