@@ -199,6 +199,7 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
             fast = zeros
             slow = ti.Vector([math.inf] * LANES, dt=ti.f64)
             widest = zeros
+            c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
             for k in range((hi - lo + LANES - 1) // LANES):
                 i0 = lo + k * LANES
                 valid = lane < hi - i0  # lanes past the block's agents count nothing
@@ -207,7 +208,7 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
                 if ti.static(with_mismatch):
                     gap = zeros
                     for a in ti.static(range(dim)):
-                        d = ti.Vector([v[a, q] for q in ti.static(range(LANES))]) - ti.cast(centre[a], ti.f64)
+                        d = ti.Vector([v[a, q] for q in ti.static(range(LANES))]) - c[a]
                         gap += d * d
                     gap = ti.select(valid, ti.sqrt(gap), 0.0)
                     gaps += gap
