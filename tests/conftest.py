@@ -29,10 +29,20 @@ def engine():
 @pytest.fixture(scope="session")
 def cpu_engine(engine):
     """The engine, for tests that run tflock's default engine (cpu) in this process: through the CLI, a sweep or
-    the README's example. Skipped when this process runs another arch (TFLOCK_TEST_ARCH)."""
-    if ARCH != "cpu":
-        pytest.skip(f"runs tflock's default engine (cpu) in this process, which runs {ARCH}")
+    the README's example. Such tests carry a skip mark when this process runs another arch (TFLOCK_TEST_ARCH; see
+    :func:`pytest_collection_modifyitems`)."""
     return engine
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests that use ``cpu_engine`` to be skipped when this process runs another arch than the cpu: a
+    mark set at collection, which the report shows, rather than a skip found once the fixture runs."""
+    if ARCH == "cpu":
+        return
+    mark = pytest.mark.skip(reason=f"runs tflock's default engine (cpu) in this process, which runs {ARCH}")
+    for item in items:
+        if "cpu_engine" in getattr(item, "fixturenames", ()):
+            item.add_marker(mark)
 
 
 @pytest.fixture
