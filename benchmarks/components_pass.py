@@ -12,7 +12,6 @@ every later call, so that two checkouts time the same states: run it in each, on
 """
 
 import argparse
-import math
 import statistics
 import time
 from pathlib import Path
@@ -21,10 +20,8 @@ import numpy as np
 import taichi as ti
 
 from tflock.bench import BenchCase, case_config
-from tflock.models import potential as potential_model
 from tflock.models import vicsek as vicsek_model
 from tflock.simulation import Simulation
-from tflock.space import OPEN, boundary_code
 
 
 def saved_state(model, path: Path, steps: int) -> None:
@@ -38,34 +35,15 @@ def saved_state(model, path: Path, steps: int) -> None:
 
 
 def vicsek_pass(model):
-    """Vicsek's metrics neighbour pass with the components, and its finish."""
-    p, grid, found = model.params, model.grid, model.components
-    g, boundary = grid.geometry, boundary_code(p.boundary)
+    """Vicsek's metrics neighbour pass with the components, and its finish (the sorted headings made once)."""
+    grid = model.grid
     vicsek_model._headings(model.n_total, grid.order, model.theta, model.trig, model.payload)
-    stripes = found.stripes()
-    radius = float(grid.real(p.radius))
-
-    def run():
-        vicsek_model._neighbour_sums_graph(*stripes, g.cells_per_side, p.radius, p.box, vicsek_model.RULES[p.rule],
-                                           boundary, grid.start, grid.runs(), grid.pos_sorted, model.payload,
-                                           model.sums, found.parent, found.size, False)
-        return found.finish(radius * radius, p.box, boundary)
-    return run
+    return model._components_pass
 
 
 def potential_pass(model):
     """`potential`'s components pass (pair sums of the earlier candidates, labels), and its finish."""
-    p, grid, found = model.params, model.grid, model.components
-    g = grid.geometry
-    r2cut, d2 = p.radius**2, p.desired_distance**2
-    stripes = found.stripes()
-
-    def run():
-        potential_model._components_lanes(*stripes, g.cells_per_side, r2cut, d2, d2 / r2cut + math.log(r2cut),
-                                          model.dim, g.boundary, grid.start, grid.runs(), grid.id_sorted,
-                                          grid.pos_sorted, found.parent, found.size, model.energy, model.nearest)
-        return found.finish(r2cut, p.box, OPEN, strict=True)
-    return run
+    return model._components_pass
 
 
 def main() -> None:

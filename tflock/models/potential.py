@@ -1062,9 +1062,9 @@ class Potential(GridModel):
         """Valency, half the saturated potential and the nearest distance of each agent, from the grid."""
         p, g, grid = self.params, self.grid.geometry, self.grid
         d2 = p.desired_distance**2
-        v_cut = d2 / p.radius**2 + math.log(p.radius**2)
-        _grid_pairs(p.n, p.radius**2, d2, v_cut, self.dim, g.boundary, g.cells_per_side, g.n_buckets, grid.start,
-                    grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy, self.nearest)
+        _grid_pairs(p.n, p.radius**2, d2, self._v_cut(), self.dim, g.boundary, g.cells_per_side, g.n_buckets,
+                    grid.start, grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted, valency, energy,
+                    self.nearest)
 
     def _pair_energies(self) -> None:
         """Each agent's share of the pair potentials in ``energy`` (half of each of its pairs; on the lane-wise pass
@@ -1108,11 +1108,10 @@ class Potential(GridModel):
         p, grid, found = self.params, self.grid, self.components
         g = grid.geometry
         d2, r2cut = p.desired_distance**2, p.radius**2
-        v_cut = d2 / r2cut + math.log(r2cut)
         if p.n <= FUSED_MAX_N:  # the velocities in cell order and the components (one stripe, counted): one launch
             layer_buckets = g.cells_per_side ** (self.dim - 1)
             _small_components(p.n, g.total_buckets // layer_buckets, layer_buckets, g.cells_per_side, r2cut, d2,
-                              v_cut, self.dim, grid.order, self.vel, self.scratch, grid.start, grid.runs(),
+                              self._v_cut(), self.dim, grid.order, self.vel, self.scratch, grid.start, grid.runs(),
                               grid.id_sorted, grid.pos_sorted, found.parent, found.size, self.energy, self.nearest,
                               found.result)
             self._sum_pairs(r2cut, d2)
@@ -1120,10 +1119,24 @@ class Potential(GridModel):
             return
         _sort_velocities(p.n, self.dim, grid.order, self.vel, self.scratch)
         self._sum_pairs(r2cut, d2)
-        stripes = found.stripes()
-        _components_lanes(*stripes, g.cells_per_side, r2cut, d2, v_cut, self.dim, g.boundary, grid.start, grid.runs(),
-                          grid.id_sorted, grid.pos_sorted, found.parent, found.size, self.energy, self.nearest)
-        self._components_found = (self.step_index, found.finish(r2cut, p.box, OPEN, strict=True)[0])  # |r_ij| < R
+        self._components_found = (self.step_index, self._components_pass()[0])
+
+    def _v_cut(self) -> float:
+        """V(R) = d^2 / R^2 + log R^2, the pair potential at the cutoff R, which the pair sums subtract (Q of eq. 10
+        less its constant)."""
+        p = self.params
+        return p.desired_distance**2 / p.radius**2 + math.log(p.radius**2)
+
+    def _components_pass(self) -> tuple[int, int]:
+        """:func:`_components_lanes` on the grid (each agent's energy and nearest distance at its grid slot, the
+        components of |r_ij| < R), and the components counted: (components, agents in the largest)."""
+        p, grid, found = self.params, self.grid, self.components
+        g = grid.geometry
+        d2, r2cut = p.desired_distance**2, p.radius**2
+        _components_lanes(*found.stripes(), g.cells_per_side, r2cut, d2, self._v_cut(), self.dim,
+                          g.boundary, grid.start, grid.runs(), grid.id_sorted, grid.pos_sorted, found.parent,
+                          found.size, self.energy, self.nearest)
+        return found.finish(r2cut, p.box, OPEN, strict=True)
 
     def _sum_pairs(self, r2cut: float, d2: float) -> None:
         """:func:`_step_sums_lanes` on the grid, the velocities in cell order in ``scratch``."""

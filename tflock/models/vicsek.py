@@ -1144,21 +1144,28 @@ class Vicsek(GridModel):
         """Order parameter and R-graph metrics from the next step's own neighbour pass, run now (its sums are kept
         for that step): the headings' cos and sin in cell order, each agent's neighbour count and the clusters."""
         p, grid = self.params, self.grid
-        g, boundary = grid.geometry, boundary_code(p.boundary)
         if self._headed != (self.step_index, grid.builds):
             _headings(self.n_total, grid.order, self.theta, self.trig, self.payload)
+        clusters, largest = self._components_pass()
+        c, s, count, most, turned, moved = self._lane_totals()
+        return {"polarization": math.hypot(c, s) / p.n, "mean_heading": math.atan2(s, c) % TWO_PI,
+                "clusters": float(clusters), "largest_cluster": largest / p.n, "mean_neighbors": count / p.n - 1.0,
+                "max_neighbors": most - 1.0, "de_theta": turned / p.n, "updated": moved / p.n}
+
+    def _components_pass(self) -> tuple[int, int]:
+        """The next step's neighbour sums with each agent's count and the clusters (:func:`_neighbour_sums_graph`, on
+        the sorted headings in ``payload``), kept for that step, and the clusters counted: (clusters, agents in the
+        largest)."""
+        p, grid = self.params, self.grid
+        g, boundary = grid.geometry, boundary_code(p.boundary)
         rule = VECTOR_COUNTED if p.noise_type == "vectorial" else RULES[p.rule]  # the sums the step would take
         stripes = self.components.stripes()
         _neighbour_sums_graph(*stripes, g.cells_per_side, p.radius, p.box, rule, boundary, grid.start, grid.runs(),
                               grid.pos_sorted, self.payload, self.sums, self.components.parent,
                               self.components.size, stripes[0] == 1 and one_thread(grid.n))
         self._summed = (self.step_index, grid.builds)
-        radius = self.grid.real(p.radius)  # R^2 as the pass above squares it, in the run's precision
-        clusters, largest = self.components.finish(float(radius * radius), p.box, boundary)
-        c, s, count, most, turned, moved = self._lane_totals()
-        return {"polarization": math.hypot(c, s) / p.n, "mean_heading": math.atan2(s, c) % TWO_PI,
-                "clusters": float(clusters), "largest_cluster": largest / p.n, "mean_neighbors": count / p.n - 1.0,
-                "max_neighbors": most - 1.0, "de_theta": turned / p.n, "updated": moved / p.n}
+        radius = grid.real(p.radius)  # R^2 as the pass above squares it, in the run's precision
+        return self.components.finish(float(radius * radius), p.box, boundary)
 
     def _lane_totals(self) -> tuple[float, ...]:
         """The lane-wise metrics' totals: sum cos theta, sum sin theta, the neighbour counts' sum and max, sum
