@@ -184,11 +184,11 @@ def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), cent
     launch whose columns it leaves as they are). ``LANES`` agents at a time, each lane summing its own agents, the
     lanes added at the block's end (a loop over single agents stays scalar: LLVM does not vectorise its float64
     max and min). The blocks are added in NumPy: the same whatever the threads."""
-    lane = ti.Vector([q for q in ti.static(range(LANES))])
-    zeros = ti.Vector([0.0] * LANES, dt=ti.f64)
     for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
         blk = task_at(t)
         if blk >= 0:
+            lane = ti.Vector([q for q in ti.static(range(LANES))])  # (made here, not before the loop: see
+            zeros = ti.Vector([0.0] * LANES, dt=ti.f64)  # tests/test_kernel_source.py)
             lo = blk * BLOCK
             hi = ti.min(n, lo + BLOCK)
             total = ti.Matrix([[0.0] * LANES for _ in ti.static(range(dim))], dt=ti.f64)
