@@ -176,68 +176,93 @@ def _velocity_columns(dim: int) -> int:
     return 2 * dim + 6
 
 
+@ti.func
+def _group_velocities(vel: ti.template(), i0, width, valid, dim: ti.template(), masked: ti.template()):
+    """The velocities of the ``LANES`` agents from i0 in float64, (dim, LANES); `masked`: 0 past the first `width`
+    (read no further)."""
+    if ti.static(masked):
+        return ti.Matrix([[ti.select(valid[q], ti.cast(vel[a, i0 + ti.min(q, width - 1)], ti.f64), 0.0)
+                           for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
+    return ti.Matrix([[ti.cast(vel[a, i0 + q], ti.f64) for q in ti.static(range(LANES))]
+                      for a in ti.static(range(dim))])
+
+
+@ti.func
+def _velocity_group(acc, vel: ti.template(), i0, width, c, dim: ti.template(), with_mismatch: ti.template(),
+                    masked: ti.template()):
+    """:func:`_velocity_stats`' lane-wise sums and extremes `acc` (rows: see there) with the ``LANES`` agents from
+    i0 added, one a lane; `masked`: only the first `width` of them (a block's last group; the other lanes count
+    nothing). The full groups take no mask, which keeps their loop in vector registers."""
+    valid = ti.Vector([q for q in ti.static(range(LANES))]) < width
+    v = _group_velocities(vel, i0, width, valid, dim, masked)
+    out = acc
+    if ti.static(with_mismatch):  # rows: sum |v - c|, largest |v - c|
+        gap = ti.Vector([0.0] * LANES, dt=ti.f64)
+        for a in ti.static(range(dim)):
+            d = ti.Vector([v[a, q] for q in ti.static(range(LANES))]) - c[a]
+            gap += d * d
+        gap = ti.sqrt(gap)
+        if ti.static(masked):
+            gap = ti.select(valid, gap, 0.0)
+        for q in ti.static(range(LANES)):
+            out[0, q] += gap[q]
+            out[1, q] = ti.max(out[1, q], gap[q])
+    else:  # rows: sum v (dim), sum |v|, sum |v|^2, sum v / |v| (dim), largest |v|, smallest |v|
+        sq = ti.Vector([0.0] * LANES, dt=ti.f64)
+        for a in ti.static(range(dim)):
+            sq += ti.Vector([v[a, q] * v[a, q] for q in ti.static(range(LANES))])
+        speed = ti.sqrt(sq)
+        per = 1.0 / ti.select(speed > 0, speed, 1.0)  # (v is 0 where the speed is)
+        slowest = speed
+        if ti.static(masked):
+            slowest = ti.select(valid, speed, math.inf)
+        for q in ti.static(range(LANES)):
+            for a in ti.static(range(dim)):
+                out[a, q] += v[a, q]
+                out[dim + 2 + a, q] += v[a, q] * per[q]
+            out[dim, q] += speed[q]
+            out[dim + 1, q] += sq[q]
+            out[2 * dim + 2, q] = ti.max(out[2 * dim + 2, q], speed[q])
+            out[2 * dim + 3, q] = ti.min(out[2 * dim + 3, q], slowest[q])
+    return out
+
+
+@ti.func
+def _lanes(acc, row: ti.template()):
+    """Row `row` of a lane-wise accumulator, as a vector over the lanes."""
+    return ti.Vector([acc[row, q] for q in ti.static(range(LANES))])
+
+
 @ti.kernel
 def _velocity_stats(n: ti.i32, dim: ti.template(), vel: ti.types.ndarray(), centre: ti.types.ndarray(),
                     with_mismatch: ti.template(), partial: ti.types.ndarray()):
     """Per block of BLOCK agents, in float64 (see :func:`_velocity_columns`): the sums, extremes and unit
     headings of the velocities; with `with_mismatch`, only |v_i - centre| (centre: the mean velocity, from a first
-    launch whose columns it leaves as they are). ``LANES`` agents at a time, each lane summing its own agents, the
-    lanes added at the block's end (a loop over single agents stays scalar: LLVM does not vectorise its float64
-    max and min). The blocks are added in NumPy: the same whatever the threads."""
+    launch whose columns it leaves as they are). ``LANES`` agents at a time (:func:`_velocity_group`), each lane
+    summing its own agents, the lanes added at the block's end (a loop over single agents stays scalar: LLVM does
+    not vectorise its float64 max and min). The blocks are added in NumPy: the same whatever the threads."""
     for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
         blk = task_at(t)
         if blk >= 0:
-            lane = ti.Vector([q for q in ti.static(range(LANES))])  # (made here, not before the loop: see
-            zeros = ti.Vector([0.0] * LANES, dt=ti.f64)  # tests/test_kernel_source.py)
             lo = blk * BLOCK
-            hi = ti.min(n, lo + BLOCK)
-            total = ti.Matrix([[0.0] * LANES for _ in ti.static(range(dim))], dt=ti.f64)
-            unit = ti.Matrix([[0.0] * LANES for _ in ti.static(range(dim))], dt=ti.f64)
-            speeds = zeros
-            squares = zeros
-            gaps = zeros
-            fast = zeros
-            slow = ti.Vector([math.inf] * LANES, dt=ti.f64)
-            widest = zeros
+            width = ti.min(n, lo + BLOCK) - lo
+            rows = ti.static(2 if with_mismatch else 2 * dim + 4)
+            slow = ti.static(-1 if with_mismatch else 2 * dim + 3)  # the row of minima, which start at infinity
+            acc = ti.Matrix([[math.inf if r == slow else 0.0] * LANES for r in ti.static(range(rows))], dt=ti.f64)
             c = ti.Vector([centre[a] for a in ti.static(range(dim))], dt=ti.f64)
-            for k in range((hi - lo + LANES - 1) // LANES):
-                i0 = lo + k * LANES
-                valid = lane < hi - i0  # lanes past the block's agents count nothing
-                v = ti.Matrix([[ti.select(valid[q], ti.cast(vel[a, ti.min(i0 + q, hi - 1)], ti.f64), 0.0)
-                                for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
-                if ti.static(with_mismatch):
-                    gap = zeros
-                    for a in ti.static(range(dim)):
-                        d = ti.Vector([v[a, q] for q in ti.static(range(LANES))]) - c[a]
-                        gap += d * d
-                    gap = ti.select(valid, ti.sqrt(gap), 0.0)
-                    gaps += gap
-                    widest = ti.max(widest, gap)
-                else:
-                    sq = zeros
-                    for a in ti.static(range(dim)):
-                        sq += ti.Vector([v[a, q] * v[a, q] for q in ti.static(range(LANES))])
-                    speed = ti.sqrt(sq)
-                    per = 1.0 / ti.select(speed > 0, speed, 1.0)  # (v is 0 where the speed is)
-                    for a in ti.static(range(dim)):
-                        for q in ti.static(range(LANES)):
-                            total[a, q] += v[a, q]
-                            unit[a, q] += v[a, q] * per[q]
-                    squares += sq
-                    speeds += speed
-                    fast = ti.max(fast, speed)
-                    slow = ti.min(slow, ti.select(valid, speed, math.inf))
+            full = width // LANES
+            for k in range(full):
+                acc = _velocity_group(acc, vel, lo + k * LANES, LANES, c, dim, with_mismatch, False)
+            if width > full * LANES:
+                acc = _velocity_group(acc, vel, lo + full * LANES, width - full * LANES, c, dim, with_mismatch, True)
             if ti.static(with_mismatch):
-                partial[blk, 2 * dim + 2] = gaps.sum()
-                partial[blk, 2 * dim + 5] = widest.max()
+                partial[blk, 2 * dim + 2] = _lanes(acc, 0).sum()
+                partial[blk, 2 * dim + 5] = _lanes(acc, 1).max()
             else:
-                for a in ti.static(range(dim)):
-                    partial[blk, a] = ti.Vector([total[a, q] for q in ti.static(range(LANES))]).sum()
-                    partial[blk, dim + 2 + a] = ti.Vector([unit[a, q] for q in ti.static(range(LANES))]).sum()
-                partial[blk, dim] = speeds.sum()
-                partial[blk, dim + 1] = squares.sum()
-                partial[blk, 2 * dim + 3] = fast.max()
-                partial[blk, 2 * dim + 4] = slow.min()
+                for r in ti.static(range(2 * dim + 2)):  # the sums: columns in the rows' order
+                    partial[blk, r] = _lanes(acc, r).sum()
+                partial[blk, 2 * dim + 3] = _lanes(acc, 2 * dim + 2).max()
+                partial[blk, 2 * dim + 4] = _lanes(acc, 2 * dim + 3).min()
 
 
 @ti.func
