@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ARCH
+from conftest import ARCH, invoke_in
 
 HAS_NUMBA = importlib.util.find_spec("numba") is not None
 
@@ -234,3 +234,27 @@ def test_a_timed_run_starts_where_a_run_leaves_the_state(engine):
             else:
                 summed = model._next_step.summed == (model.step_index, model.grid.builds)
             assert summed == (metrics_every == 1), f"{cls.name}, metrics every {metrics_every}"
+
+
+def test_a_case_that_fails_is_named_in_the_results(tmp_path, monkeypatch):
+    """A case whose process fails is left out of the table and the CSV, and named with its error in the JSON: a
+    results file says which cases it lacks (on an H100 a potential case once failed with the rest still timed)."""
+    from tflock import bench
+
+    real = bench.run_in_subprocess
+    error = "bench case formation n=300 uniform failed: CUDA_ERROR_MISALIGNED_ADDRESS"
+
+    def run(case, timeout_s=3600):
+        if case.model == "formation":
+            raise RuntimeError(error)
+        return real(case, timeout_s)
+
+    monkeypatch.setattr(bench, "run_in_subprocess", run)
+    result = invoke_in(tmp_path, ["bench", "--models", "vicsek,formation", "--sizes", "300", "--states", "uniform",
+                                  "--repeats", "2", "--no-peers", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "run.json").read_text())
+    assert [r["case"]["model"] for r in data["results"]] == ["vicsek"]
+    assert [(s["case"]["model"], s["case"]["n"], s["error"]) for s in data["skipped"]] == [("formation", 300, error)]
+    with open(tmp_path / "run.csv") as f:
+        assert [row["model"] for row in csv.DictReader(f)] == ["vicsek"]

@@ -31,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -461,13 +461,16 @@ def default_out(now: float | None = None) -> Path:
     return Path("results") / "bench" / f"bench-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now))}"
 
 
-def write_results(results: list[BenchResult], out: Path, command: str) -> list[Path]:
-    """JSON (with the machine and the command), CSV, and a log-log PNG when matplotlib is installed."""
+def write_results(results: list[BenchResult], out: Path, command: str,
+                  skipped: Sequence[tuple[BenchCase, str]] = ()) -> list[Path]:
+    """JSON (with the machine, the command and each case that failed, with its error), CSV, and a log-log PNG
+    when matplotlib is installed."""
     import csv
 
     out.parent.mkdir(parents=True, exist_ok=True)
     payload = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d"),
-               "results": [{**asdict(r), "case": asdict(r.case)} for r in results]}
+               "results": [{**asdict(r), "case": asdict(r.case)} for r in results],
+               "skipped": [{"case": asdict(case), "error": error} for case, error in skipped]}
     json_path = out.with_suffix(".json")
     json_path.write_text(json.dumps(payload, indent=1) + "\n")
     rows = [r.row() for r in results]

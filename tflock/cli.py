@@ -446,7 +446,7 @@ def bench(
                       overrides=overrides, metrics_every=metrics_every)
     prefix = prefix or default_out()
     _refuse_bench_cases(todo, prefix)
-    results = []
+    results, skipped = [], []
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, disable=not err.is_terminal) as progress:
         task = progress.add_task("bench", total=len(todo))
@@ -456,6 +456,7 @@ def bench(
                 results.append(run_in_subprocess(case))
             except RuntimeError as e:
                 err.print(f"[yellow]skipped:[/] {e}", highlight=False)
+                skipped.append((case, str(e)))
             progress.advance(task)
     table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, with metrics and "
                   "guard, against the plain step; logged run: a frame every step too, against the run; "
@@ -478,7 +479,7 @@ def bench(
     (out if out.is_terminal else Console(width=200)).print(table)
     if not results:
         fail("no benchmark case completed")
-    for path in write_results(results, prefix, "tflock " + " ".join(sys.argv[1:])):
+    for path in write_results(results, prefix, "tflock " + " ".join(sys.argv[1:]), skipped):
         out.print(f"wrote {path}", highlight=False)
 
 
