@@ -488,7 +488,8 @@ def write_results(results: list[BenchResult], out: Path, command: str,
 
 
 def plot(results: list[BenchResult], path: Path) -> Path | None:
-    """agent-steps/s and ms/step against N, log-log, one line per (model, state); None without matplotlib."""
+    """agent-steps/s and ms/step against N, log-log, one line per (model, state), with a run's ms/step (and a
+    logged run's) beside the step's and the peers'; None without matplotlib."""
     try:
         import matplotlib
 
@@ -496,7 +497,7 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 6))
     groups: dict[tuple[str, str, bool], list[BenchResult]] = {}
     for r in results:
         groups.setdefault((r.case.model, r.case.state, r.case.log), []).append(r)
@@ -506,19 +507,25 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
         rs.sort(key=lambda r: r.case.n)
         n = [r.case.n for r in rs]
         nb = ", ".join(f"{r.mean_neighbors:.0f}" for r in rs)
-        label = f"{model} {state}{' +log' if log else ''} (neighbours {nb})"
+        label = f"{model} {state}{' +log' if log else ''}: step (neighbours {nb})"
         left.loglog(n, [r.agent_steps_per_s for r in rs], "o-", color=color, label=label)
         right.loglog(n, [r.ms_median for r in rs], "o-", color=color, label=label)
+        right.loglog(n, [r.run_ms_median for r in rs], "s", linestyle=(0, (6, 2)), color=color,
+                     label=f"{model} {state}: run (metrics, guard)")
+        logged = [r for r in rs if r.logged_ms_median is not None]
+        if logged:
+            right.loglog([r.case.n for r in logged], [r.logged_ms_median for r in logged], "^", linestyle=(0, (2, 2)),
+                         color=color, label=f"{model} {state}: logged run")
         for name in sorted({p for r in rs for p in r.peers}):
             with_peer = [r for r in rs if name in r.peers]
             right.loglog([r.case.n for r in with_peer], [r.peers[name]["ms"] for r in with_peer], "x",
                          linestyle=styles.get(name, "-."), color=color, label=f"{model} {state}: {name}")
     left.set(xlabel="N agents", ylabel="agent-steps / s", title="throughput")
-    right.set(xlabel="N agents", ylabel="ms / step (median)", title="step time")
+    right.set(xlabel="N agents", ylabel="ms / step (median)", title="step time, and a run's")
     for ax in (left, right):
         ax.grid(True, which="both", alpha=0.3)
-    left.legend(fontsize=7)
-    right.legend(fontsize=7)
+    for ax in (left, right):  # below the axes: the right one's entries would cover its lines
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
     engine = results[0].engine if results else ""
     overrides = sorted({o for r in results for o in r.case.overrides})
     config = f"default config with {', '.join(overrides)}" if overrides else "default config"
