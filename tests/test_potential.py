@@ -443,8 +443,8 @@ def test_small_swarm_velocity_statistics_are_the_kernels(engine, monkeypatch, di
 def test_velocity_statistics_over_several_blocks_are_numpys(engine, dim):
     """The velocity kernels' lanes and blocks (two blocks, the second ending inside a group of lanes, agents at
     rest among them) give NumPy's float64 statistics of the same velocities."""
-    from tflock.metrics import BLOCK
     from tflock.models.potential import velocity_stats
+    from tflock.reductions import BLOCK
 
     n = BLOCK + 13
     cfg = config(n=n, box=200.0, dim=dim, topology="switching")

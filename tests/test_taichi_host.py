@@ -8,7 +8,7 @@ from conftest import ARCH
 from taichi.lang._ndarray import ScalarNdarray
 
 from tflock.guard import Guarded, first_non_finite, kernel_first_non_finite
-from tflock.metrics import BLOCK, kernel_total, total
+from tflock.reductions import BLOCK, kernel_maximum, kernel_total, maximum, total
 from tflock.taichi_host import host_array, host_view
 
 DTYPES = [(ti.f32, np.float32), (ti.f64, np.float64), (ti.i32, np.int32), (ti.i64, np.int64),
@@ -96,6 +96,22 @@ def test_total_equals_the_kernel_sum(engine, dtype):
     assert kernel_total(a, n) == pytest.approx(exact, abs=tolerance)
     if np_type == np.int32:
         assert total(a, n) == kernel_total(a, n) == exact
+
+
+@pytest.mark.parametrize("dtype", [(ti.f32, np.float32), (ti.f64, np.float64), (ti.i32, np.int32)],
+                         ids=["f32", "f64", "i32"])
+def test_maximum_equals_the_kernel_maximum(engine, dtype):
+    """The largest of the first n values (all negative, the largest in the last, partial block), whatever lies past
+    n: NumPy's on the ndarray's memory and the block kernel's (GPU arches) alike."""
+    ti_type, np_type = dtype
+    n = 2 * BLOCK + 77
+    values = -np.random.default_rng(3).uniform(10.0, 1000.0, n + 5).astype(np_type)
+    values[n - 3] = -1
+    values[n:] = 5  # past n: not counted
+    a = ti.ndarray(ti_type, n + 5)
+    a.from_numpy(values)
+    assert maximum(a, n) == kernel_maximum(a, n) == -1.0
+    assert kernel_maximum(a, 1) == float(values[0])
 
 
 @pytest.mark.parametrize("wide", [False, True], ids=["f32", "f64"])

@@ -40,8 +40,8 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.reductions import total
 from tflock.space import BOUNDARIES, OPEN, PERIODIC, displacement
-from tflock.taichi_host import host_array
 from tflock.union_find import find_root, union
 
 
@@ -394,7 +394,7 @@ class Components:
         _pair_sizes(grid.n, self.parent, self.size, self.result)
         clusters, largest, _ = (int(v) for v in self.result.to_numpy())
         self.slot_grid = grid
-        edges = float(host_array(self.pairs).sum(dtype=np.int64))
+        edges = total(self.pairs, grid.n)
         self.dense = self._occupancy(2.0 * edges / grid.n) >= DENSE_SUBCELL
         return clusters, largest
 

@@ -9,7 +9,6 @@ counted per agent without atomics, or taken from a model step's own neighbour pa
 """
 
 
-import functools
 import math
 
 import numpy as np
@@ -28,19 +27,15 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.reductions import BLOCK, maximum, mean, n_blocks, scratch
 from tflock.rng import Stream, hash_ti, randint_ti
 from tflock.space import OPEN, displacement, wrap_pi
-from tflock.taichi_host import host_array, host_view
+from tflock.taichi_host import host_array
 
-BLOCK = 4096
 #: swarms of at most this many agents take their degrees and components (and Vicsek's heading and pair sums) in one
 #: launch on one CPU thread (:func:`_small_graph`, :func:`_small_orders`): the parallel passes' launches cost more
 #: than the arithmetic
 SMALL_GRAPH_MAX = 128
-
-
-def n_blocks(n: int) -> int:
-    return max(1, math.ceil(n / BLOCK))
 
 
 @ti.kernel
@@ -64,13 +59,6 @@ def _angle_block(theta: ti.template(), n, reference, partial: ti.template(), blk
     partial[blk, 0] = c
     partial[blk, 1] = s
     partial[blk, 2] = gap
-
-
-@functools.lru_cache(maxsize=8)
-def scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
-    """An ndarray of this shape and dtype for a pass's partial results, made once and shared (making an ndarray
-    costs about a millisecond in Taichi's front end): read it before the next pass of the same shape writes it."""
-    return ti.ndarray(dtype, shape)
 
 
 def heading_order(theta: ti.Ndarray, n: int, reference: float = 0.0) -> tuple[float, float, float]:
@@ -327,46 +315,6 @@ class NeighbourGraph:
             "mean_neighbors": by_replica.sum(axis=1) / per,
             "max_neighbors": by_replica.max(axis=1).astype(np.float64),
         }
-
-
-@ti.kernel
-def _block_sums(values: ti.types.ndarray(), n: ti.i32, partial: ti.types.ndarray()):
-    """partial[b] = sum of values over block b, in the type of `partial` (i64 sums of ints stay exact)."""
-    for t in range(partial.shape[0] * TASK_STRIDE):  # a block a task (tflock.cpu_tasks)
-        blk = task_at(t)
-        if blk >= 0:
-            total = partial[blk] * 0
-            for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-                total += values[i]
-            partial[blk] = total
-
-
-def total(values: ti.Ndarray, n: int) -> float:
-    """Deterministic sum of ``values[:n]`` (ints exactly). On the CPU NumPy sums the ndarray's own memory (floats
-    in f64): no kernel to compile, no copy; elsewhere a kernel sums blocks (floats in their own type, ints in i64)
-    and NumPy adds the blocks."""
-    view = host_view(values)
-    if view is None:
-        return kernel_total(values, n)
-    return float(view[:n].sum(dtype=np.float64 if view.dtype.kind == "f" else np.int64))
-
-
-def kernel_total(values: ti.Ndarray, n: int) -> float:
-    """:func:`total` on GPU arches: block sums in a kernel, added in NumPy."""
-    real = values.dtype in (ti.f32, ti.f64)
-    partial = scratch((n_blocks(n),), values.dtype if real else ti.i64)
-    _block_sums(values, n, partial)
-    return float(partial.to_numpy().astype(np.float64 if real else np.int64).sum())
-
-
-def mean(values: ti.Ndarray, n: int) -> float:
-    """Deterministic mean of an (n,) ndarray: :func:`total` / n."""
-    return total(values, n) / n
-
-
-def maximum(values: ti.Ndarray, n: int) -> float:
-    """Largest of ``values[:n]`` (NumPy over the ndarray's memory on the CPU, a copy elsewhere)."""
-    return float(host_array(values)[:n].max())
 
 
 #: up to this many agents, e_d and e_theta are exact (all n (n - 1) / 2 pairs); above, estimates

@@ -28,10 +28,11 @@ from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.field import UNIT_VECTORS
 from tflock.frame import Frame, WorldSpec, arrow_length
-from tflock.metrics import BLOCK, NeighbourGraph, n_blocks
+from tflock.metrics import NeighbourGraph
 from tflock.models.adaptive_params import AdaptiveParams, agreement_tolerance
 from tflock.models.base import GridModel
 from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
+from tflock.reductions import BLOCK, n_blocks
 from tflock.reference.adaptive import initial_draws
 from tflock.rng import Stream, replica_key, uniform_ti
 from tflock.space import OPEN, PERIODIC, boundary_code, displacement, wrap_periodic

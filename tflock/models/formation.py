@@ -54,7 +54,6 @@ from tflock.fastmath import cos_sin, sin_cos
 from tflock.field import UNIT_VECTORS
 from tflock.frame import ColorLegend, Frame, Marker, WorldSpec, arrow_length
 from tflock.guard import NO_AGENT, Guarded, first_non_finite
-from tflock.metrics import BLOCK, n_blocks, scratch
 from tflock.models.base import Model
 from tflock.models.formation_params import (
     ALIGN,
@@ -86,6 +85,7 @@ from tflock.neighbors import (
     stencil_span,
     window_run_wraps,
 )
+from tflock.reductions import BLOCK, n_blocks, scratch
 from tflock.reference import formation as ref
 from tflock.rng import Stream, uniform_ti
 from tflock.space import PERIODIC, REFLECTING, WINDOW, displacement, wrap_periodic, wrap_pi, wrap_two_pi

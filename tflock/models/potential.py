@@ -48,7 +48,7 @@ from tflock.lane_graph import (
     settle_block,
     stripe_range,
 )
-from tflock.metrics import BLOCK, EXACT_PAIRS_MAX, NeighbourGraph, n_blocks, total
+from tflock.metrics import EXACT_PAIRS_MAX, NeighbourGraph
 from tflock.models.base import GridModel, Lyapunov
 from tflock.models.potential_graphs import fixed_graph_edges, initial_state, to_csr
 from tflock.models.potential_params import PotentialParams
@@ -69,6 +69,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
+from tflock.reductions import BLOCK, n_blocks, total
 from tflock.space import OPEN
 from tflock.taichi_host import host_array, host_view, small_host_view
 

@@ -57,20 +57,13 @@ from tflock.lane_graph import (
     stripe_range,
 )
 from tflock.metrics import (
-    BLOCK as SUM_BLOCK,
-)
-from tflock.metrics import (
     EXACT_PAIRS_MAX,
     SAMPLED_PAIRS,
     NeighbourGraph,
     heading_order,
-    mean,
-    n_blocks,
     orders_and_pairs,
     pairwise_errors,
     replica_pairwise_errors,
-    scratch,
-    total,
 )
 from tflock.models.base import GridModel
 from tflock.neighbors import (
@@ -91,6 +84,8 @@ from tflock.neighbors import (
     stencil_span,
 )
 from tflock.observables import TransitionObservables
+from tflock.reductions import BLOCK as SUM_BLOCK
+from tflock.reductions import mean, n_blocks, scratch, total
 from tflock.reference import wrap_pi as wrap_pi_np
 from tflock.rng import Stream, bernoulli_ti, hash_ti, pair_hash_ti, randint_ti, replica_key, uniform_np, uniform_ti
 from tflock.space import (

@@ -31,11 +31,12 @@ from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import EngineInfo
 from tflock.field import UNIT_VECTORS
 from tflock.frame import Frame, WorldSpec, arrow_length
-from tflock.metrics import BLOCK, NeighbourGraph, mean, n_blocks
+from tflock.metrics import NeighbourGraph
 from tflock.models.adaptive import cone_noise
 from tflock.models.base import GridModel
 from tflock.neighbors import CellGrid, load_cell, load_vec, same_cell, span_agents, span_count, stencil_span
 from tflock.observables import TransitionObservables
+from tflock.reductions import BLOCK, mean, n_blocks
 from tflock.reference.adaptive import initial_draws
 from tflock.rng import Stream, replica_key, uniform_ti
 from tflock.space import OPEN, PERIODIC, REFLECTING, displacement, reflect, wrap_periodic
