@@ -464,6 +464,11 @@ def swarm(kind, n, dim, box, radius, rng, boundary="periodic"):
     return np.mod(x, box)
 
 
+#: tests of tflock.components' union-find passes, which Vulkan does not take: tflock.metrics.NeighbourGraph joins by
+#: rounds of labels there (Taichi 1.7's SPIR-V backend miscompiles the lock-free union-find)
+union_find_only = pytest.mark.skipif(ARCH == "vulkan", reason="Vulkan joins by rounds of labels, not by union-find")
+
+
 def components_on_grid(engine, x, boundary, box, radius, strict, dense):
     """The components of x's R-graph by the pass `dense` picks (sub-cells or pairs), on a model grid of x."""
     from tflock.components import Components
@@ -473,6 +478,7 @@ def components_on_grid(engine, x, boundary, box, radius, strict, dense):
     return found.compute(), found
 
 
+@union_find_only
 @pytest.mark.parametrize("dense", [False, True], ids=["pairs", "sub-cells"])
 @pytest.mark.parametrize("kind", ["one flock", "many clusters"])
 @pytest.mark.parametrize("boundary,dim", [("periodic", 2), ("reflecting", 2), ("open", 2), ("periodic", 3),
@@ -500,6 +506,7 @@ def test_components_match_brute_force(engine, boundary, dim, kind, dense):
         assert len(sizes) > 20
 
 
+@union_find_only
 @pytest.mark.parametrize("boundary,dim", [("periodic", 2), ("reflecting", 2), ("open", 2), ("periodic", 3)])
 def test_degrees_counted_in_the_pairs_pass_are_the_degree_pass_counts(engine, monkeypatch, boundary, dim):
     """Once a call has seen a sparse swarm, the next one counts the degrees in the pairs pass's walk
@@ -534,6 +541,7 @@ def test_degrees_counted_in_the_pairs_pass_are_the_degree_pass_counts(engine, mo
                 assert again["mean_neighbors"] == pytest.approx(want["mean_neighbors"])
 
 
+@union_find_only
 def test_small_dense_swarms_take_the_pairs_pass(engine):
     """A flock dense enough for the sub-cell pass but of at most SUBCELL_MIN_AGENTS agents is joined by the pairs
     pass (the sub-cell grid's launches cost more there), with the brute-force components and counts."""
@@ -595,7 +603,7 @@ def test_replica_components_match_brute_force(engine, boundary, density):
     grid = built_grid(engine, np.concatenate(xs), boundary, box, radius, replicas=3)
     graph = NeighbourGraph(grid)
     got = graph.compute_replicas(radius, box)
-    assert (graph._components.slot_grid is not grid) == (density == "dense")
+    assert graph.in_rounds or (graph._components.slot_grid is not grid) == (density == "dense")
     for r, x in enumerate(xs):
         want = ref.graph_metrics(x, radius, boundary, box)
         assert got["clusters"][r] == want["clusters"]
