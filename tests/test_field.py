@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 import taichi as ti
 
+import tflock.field as field_module
 from tflock.field import (
     ANGLE_ROW,
     ANGLES,
     CLASSES,
     DENSITY_LEVELS,
+    HUES,
     UNIT_VECTORS,
     VECTORS,
     Field,
@@ -134,3 +136,29 @@ def test_classes_and_default_size() -> None:
     value = colors[1:, :3].reshape(24, DENSITY_LEVELS, 2, 3).max(axis=3)
     assert np.all(np.diff(value.astype(int), axis=1) > 0)
     assert [field_size(n) for n in (12, 2e4, 1e5, 1e6, 1e8)] == [64, 64, 128, 256, 256]
+
+
+@ti.kernel
+def _hues(sums: ti.types.ndarray(), out: ti.types.ndarray()):
+    for i in range(out.shape[0]):
+        out[i] = field_module._hue(sums[i, 0], sums[i, 1])
+
+
+def test_hue_is_the_rounded_angle(engine):
+    """A pixel's hue, found without atan2 (Vulkan has no 64-bit one), is round(atan2(sy, sx) / 15 degrees) mod 24 as
+    the reference computes it: every direction of a small integer square (the axes and diagonals included), large
+    random sums, and sums a unit or two off each sector edge."""
+    small = [(x, y) for x in range(-40, 41) for y in range(-40, 41) if x or y]
+    rng = np.random.default_rng(4)
+    large = rng.integers(-(2**40), 2**40, (4000, 2)).tolist()
+    edges = []
+    for k in range(HUES):
+        angle = 2 * math.pi / HUES * (k + 0.5)
+        for radius in (1e3, 1e6, 1e9):
+            x, y = round(radius * math.cos(angle)), round(radius * math.sin(angle))
+            edges += [(x + dx, y + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+    sums = np.array(small + large + edges, dtype=np.int64)
+    out = ti.ndarray(ti.i32, len(sums))
+    _hues(upload(sums.astype(np.float64), ti.f64), out)  # (exact: below 2^53)
+    want = [math.floor(math.atan2(y, x) * (HUES / (2 * math.pi)) + 0.5) % HUES for x, y in sums.tolist()]
+    np.testing.assert_array_equal(out.to_numpy(), want)

@@ -28,6 +28,9 @@ from tflock.neighbors import BOUNDED, LANES
 from tflock.space import PERIODIC, REFLECTING
 
 HUES = 24
+#: the tangents of the hue sectors' edges inside the first octant (7.5, 22.5 and 37.5 degrees: HUES sectors of 15
+#: degrees centred on multiples of 15), which :func:`_hue` compares against
+_OCTANT_EDGES = tuple(math.tan(math.radians(360 / HUES * (k + 0.5))) for k in range(HUES // 8))
 DENSITY_LEVELS = 5
 ORDER_LEVELS = 2
 #: colour classes of a pixel: 0 (empty) and one per (hue, density level, order level)
@@ -221,12 +224,30 @@ def _classify_pixel(c, sx, sy, n_agents, units, pixel_units):
         ordered = ti.select(length >= ORDERED, 1, 0)
         hue = 0
         if fx != 0 or fy != 0:
-            sector = ti.atan2(fy, fx) * (HUES / (2 * math.pi))
-            hue = ti.cast(ti.floor(sector + 0.5), ti.i32) % HUES
-            if hue < 0:
-                hue += HUES
+            hue = _hue(fx, fy)
         out = 1 + (hue * DENSITY_LEVELS + level) * ORDER_LEVELS + ordered
     return out
+
+
+@ti.func
+def _hue(fx, fy):
+    """round(atan2(fy, fx) / (2 pi / HUES)) mod HUES for a direction (fx, fy) != 0 in float64, without atan2 (Vulkan's
+    shaders have none in 64 bits): the angle from the nearer axis, in [0, 45] degrees, against the sectors' edges
+    there (:data:`_OCTANT_EDGES`), then the quadrant. An edge's tangent is irrational, so the integer sums never lie
+    on one and the rounding direction there does not arise."""
+    ax, ay = ti.abs(fx), ti.abs(fy)
+    near, far = ti.min(ax, ay), ti.max(ax, ay)
+    past = 0  # edges between the nearer axis and the direction
+    for e in ti.static(_OCTANT_EDGES):
+        past += ti.select(near >= far * ti.f64(e), 1, 0)  # (ti.f64: a float64 constant at any precision)
+    quarter = HUES // 4
+    q = ti.select(ax >= ay, past, quarter - past)  # sectors from the +x side of the direction's quadrant
+    hue = q
+    if fx < 0:
+        hue = ti.select(fy >= 0, 2 * quarter - q, 2 * quarter + q)
+    elif fy < 0:
+        hue = (HUES - q) % HUES
+    return hue
 
 
 @ti.kernel
