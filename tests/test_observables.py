@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import taichi as ti
-from conftest import PRECISION
+from conftest import ARCH, PRECISION
 
 from tflock.observables import (
     axis_profile,
@@ -46,6 +46,8 @@ def test_box_counts_and_profiles_match_reference(engine, dim, counted, replicas,
 
     monkeypatch.setattr(tflock.taichi_host, "SMALL_SWARM_MAX", 0 if counted.startswith("kernel") else 10**6)
     parts = {"kernel-1-part": 1, "kernel-3-parts": 3, "kernel-atomics": 0}
+    if parts.get(counted, 0) and ARCH != "cpu":
+        pytest.skip("partial tables are the CPU's (count_parts() is 0 on GPU arches)")
     if counted in parts:
         monkeypatch.setattr(tflock.observables, "count_parts", lambda: parts[counted])
     box, n = 7.0, 600
