@@ -214,8 +214,8 @@ def _bin_each(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: t
               dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(), inv_pixel: ti.f64, size: ti.i32,
               count: ti.types.ndarray(), sums: ti.types.ndarray()):
     """:func:`_bin` on GPU arches: an agent a thread, added with one atomic per array (the same integer sums). The
-    chunks of agents in order suit a CPU's few threads, not a GPU's, and Taichi 1.7's SPIR-V backend lost most of
-    their additions (18 of 5000 agents counted on Vulkan)."""
+    chunks of agents in order suit a CPU's few threads, not a GPU's, and on Vulkan (Mesa's lavapipe) most of their
+    additions were lost (18 of 5000 agents counted)."""
     a, b = ti.static(PLANES[plane])
     for e in range(n):
         fx, fy = _direction(dirs, e, a, b, row, mode, normalise)
