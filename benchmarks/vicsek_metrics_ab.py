@@ -95,9 +95,13 @@ def main() -> None:
             kernel = module._neighbour_sums_graph
             serial = (components.stripes()[0] == 1,) if "serial" in inspect.signature(kernel).parameters else ()
 
+            # finish takes R^2 in the run's precision, as the model passes it (R before 1c9ec64)
+            squared = "r2" in inspect.signature(components.finish).parameters
+            reach = float(grid.real(p.radius) ** 2) if squared else p.radius
+
             def run() -> None:
                 kernel(*components.stripes(), *args_pass, components.parent, components.size, *serial)
-                components.finish(p.radius, p.box, boundary)
+                components.finish(reach, p.box, boundary)
             return run
 
         def plain(model):
