@@ -53,7 +53,8 @@ def test_a_second_run_on_the_same_path_is_refused_and_the_first_ends_verified(tm
     assert names(tmp_path) == ["same.metrics.csv", "same.rrd"]  # no lock, no temporary file
 
 
-def test_an_earlier_runs_files_are_refused_unless_overwrite(cpu_engine: Any, tmp_path: Path) -> None:
+def test_an_earlier_runs_files_are_refused_unless_overwrite(cpu_engine: Any, tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     assert sim(tmp_path, "--steps", "1", "--out", "x.rrd", "--checkpoint-every", "1").exit_code == 0
     before = {name: (tmp_path / name).read_bytes() for name in names(tmp_path)}
     assert sorted(before) == ["x.checkpoint.npz", "x.metrics.csv", "x.rrd"]
@@ -64,6 +65,11 @@ def test_an_earlier_runs_files_are_refused_unless_overwrite(cpu_engine: Any, tmp
     (tmp_path / "kept.rrd").rename(tmp_path / "x.rrd")
     assert_one_error_line(sim(tmp_path, "--steps", "3", "--out", "y.rrd", "--checkpoint", "x.checkpoint.npz"),
                           "x.checkpoint.npz exists")
+    assert {name: (tmp_path / name).read_bytes() for name in names(tmp_path)} == before
+    with monkeypatch.context() as patch:  # refused at its start (the engine), an overwriting run keeps them
+        patch.setenv("TFLOCK_LANES", "7")
+        assert_one_error_line(sim(tmp_path, "--steps", "3", "--out", "x.rrd", "--overwrite", "--checkpoint-every",
+                                  "2"), "TFLOCK_LANES")
     assert {name: (tmp_path / name).read_bytes() for name in names(tmp_path)} == before
 
     assert sim(tmp_path, "--steps", "3", "--out", "x.rrd", "--overwrite", "--checkpoint-every", "2").exit_code == 0

@@ -112,9 +112,19 @@ class OutputLock:
 
 @dataclass
 class Outputs:
-    """The outputs of one run, locked for its lifetime; :meth:`release` at its end (idempotent)."""
+    """The outputs of one run, locked for its lifetime; :meth:`release` at its end (idempotent). `replaced`: an
+    earlier run's files that ``--overwrite`` replaces, deleted by :meth:`remove_replaced` once the run starts."""
 
     locks: list[OutputLock] = field(default_factory=list)
+    replaced: list[Path] = field(default_factory=list)
+
+    def remove_replaced(self) -> None:
+        """Delete the earlier run's files this run replaces: when it starts, not half-way through it, and not
+        before, so that a run refused at its start (an engine that is missing, a start state that is not finite)
+        leaves them as they were."""
+        for file in self.replaced:
+            file.unlink(missing_ok=True)
+        self.replaced.clear()
 
     def release(self) -> None:
         for lock in self.locks:
@@ -135,9 +145,10 @@ def lock(path: Path) -> OutputLock:
 def claim(path: Path, what: str, covers: Iterable[tuple[Path, str]] = (), *, overwrite: bool = False,
           allowed: Path | None = None, into: Outputs) -> OutputLock:
     """Check that output `path` (the `what`: "recording", "checkpoint") and the files it `covers` (path, what) can
-    be written, lock it for this run and refuse an earlier run's file there: unless `overwrite`, which deletes
-    them (`allowed` may exist and stays: the checkpoint a run resumes from). Appends the lock to `into`. Raises
-    OSError ("cannot write the ..."), OutputBusyError or OutputExistsError, leaving nothing behind."""
+    be written, lock it for this run and refuse an earlier run's file there: unless `overwrite`, which lists them in
+    ``into.replaced`` (:meth:`Outputs.remove_replaced`; `allowed` may exist and stays: the checkpoint a run resumes
+    from). Appends the lock to `into`. Raises OSError ("cannot write the ..."), OutputBusyError or
+    OutputExistsError, leaving nothing behind."""
     files = [(path, what), *covers]
     for file, kind in files:
         check_writable(file, kind)
@@ -147,8 +158,7 @@ def claim(path: Path, what: str, covers: Iterable[tuple[Path, str]] = (), *, ove
         held.release()
         raise OutputExistsError(17, f"{existing[0]} exists (an earlier run's output); --overwrite replaces it, "
                                     "or give another path")
-    for file in existing:  # overwrite: the earlier run's files go now, not half-way through this run
-        file.unlink()
+    into.replaced += existing
     into.locks.append(held)
     return held
 

@@ -213,6 +213,7 @@ class Simulation:
                 taken.release()
                 raise
             self._outputs.locks += taken.locks
+            self._outputs.replaced += taken.replaced
             return recording, checkpoint or beside
 
         if default_name or (record_path is None and checkpoint is None and checkpoint_every):
@@ -238,6 +239,7 @@ class Simulation:
             with np.errstate(over="ignore", invalid="ignore"):
                 self._restore(saved)
         self._refuse_non_finite_start()
+        self._outputs.remove_replaced()  # (--overwrite) the run starts here
         if record_path is not None or spawn or connect:
             self._open_recorder(record_path, spawn, connect)
         if saved is None:
