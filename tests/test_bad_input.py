@@ -392,6 +392,7 @@ OUTPUTS = [
      ["cannot write the checkpoint", "/proc/forbidden/c.npz"]),
     (["--no-log", "--checkpoint-every", "2", "--checkpoint", "ck_dir"], ["cannot write the checkpoint", "directory"]),
     (["--checkpoint-every", "2", "--out", "afile/x.rrd"], ["cannot write the checkpoint", "afile/x.checkpoint.npz"]),
+    (["--out", "x.rrd", "--no-log"], ["--out and --no-log", "give one of them"]),
 ]
 
 

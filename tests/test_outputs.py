@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import tomllib
 from conftest import PRECISION, assert_one_error_line, invoke_in, tflock_process, wait_for_rows
 
 from tflock import outputs, simulation
@@ -76,6 +77,18 @@ def test_an_earlier_runs_files_are_refused_unless_overwrite(cpu_engine: Any, tmp
     assert read_recording(tmp_path / "x.rrd").steps == [0, 1, 2, 3]
     assert int(simulation.read_checkpoint(tmp_path / "x.checkpoint.npz")["step"]) == 2  # the earlier run's: step 1
     assert names(tmp_path) == sorted(before)
+
+
+def test_out_is_the_saved_configs_log_out(cpu_engine: Any, tmp_path: Path) -> None:
+    """--out is a shortcut for log.out: the config a checkpoint keeps says where the recording went, so a resumed
+    run without --out would write there (refused: it exists) and not under a default name."""
+    assert sim(tmp_path, "--steps", "2", "--out", "runs/a.rrd", "--checkpoint-every", "2").exit_code == 0
+    saved = simulation.read_checkpoint(tmp_path / "runs" / "a.checkpoint.npz", arrays=False)
+    assert tomllib.loads(str(saved["config_toml"]))["log"]["out"] == "runs/a.rrd"
+    assert_one_error_line(invoke_in(tmp_path, ["sim", "--resume", "runs/a.checkpoint.npz", "--steps", "4"]),
+                          "runs/a.rrd exists")
+    assert names(tmp_path) == ["runs"]
+    assert names(tmp_path / "runs") == ["a.checkpoint.npz", "a.metrics.csv", "a.rrd"]
 
 
 def test_a_resumed_run_may_keep_writing_its_own_checkpoint(cpu_engine: Any, tmp_path: Path) -> None:

@@ -9,6 +9,7 @@ recording up to the last logged frame.
 from __future__ import annotations
 
 import gc
+import json
 import signal
 import sys
 import time
@@ -105,10 +106,16 @@ def sim(
 ) -> None:
     """Run a simulation: `tflock sim` runs the default Vicsek config and records it under recordings/."""
     t_start = time.perf_counter()
+    if out_path is not None and out_path.suffix != ".rrd":
+        fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
+    if out_path is not None and no_log:
+        fail("--out and --no-log: a run without a recording writes no .rrd; give one of them")
     overrides = list(set_ or [])
     for key, value in (("steps", steps), ("seed", seed), ("engine.arch", arch), ("engine.threads", threads)):
         if value is not None:
             overrides.append(f"{key}={value!r}" if isinstance(value, str) else f"{key}={value}")
+    if out_path is not None:  # log.out, so that the config saved in the recording and checkpoints says where it went
+        overrides.append(f"log.out={json.dumps(str(out_path))}")
     if checkpoint_every < 0:
         fail(f"--checkpoint-every: must be >= 0, got {checkpoint_every}")
     if resume is not None:
@@ -130,9 +137,7 @@ def sim(
             cfg = load_config(config, model=model, overrides=overrides)
     except ConfigError as e:
         fail(str(e))
-    if out_path is not None and out_path.suffix != ".rrd":
-        fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
-    record: bool | Path = False if no_log else (out_path or (not (spawn or connect)))
+    record = not no_log and (out_path is not None or not (spawn or connect))  # to log.out, else a default name
 
     stop = _StopRequest()
     signal.signal(signal.SIGTERM, stop.handler)  # SLURM, timeout, docker stop: finish the file
