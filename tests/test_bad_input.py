@@ -492,6 +492,14 @@ def test_other_commands(workdir: Path, args: list[str], needles: list[str]) -> N
     refused_cleanly(args, workdir, *needles)
 
 
+def test_bench_with_an_engine_that_does_not_start(workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Known only once a case's process starts its engine, and the same for every case: the engine's one line,
+    not a skipped case and an empty table."""
+    monkeypatch.setenv("TFLOCK_LANES", "7")
+    refused_cleanly(["bench", "--sizes", "1e3", "--models", "vicsek", "--states", "uniform", "--repeats", "1",
+                     "--no-peers", "--out", "b"], workdir, "TFLOCK_LANES", "must be 8 or 16")
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Generated cases (hypothesis, derandomized: the same examples on every run)
 

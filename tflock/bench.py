@@ -406,12 +406,23 @@ def _mean_neighbours(model: Any, metrics: dict[str, float], box: float) -> float
     return NeighbourGraph(model.grid).compute(model.params.radius, box)["mean_neighbors"]
 
 
+class CaseEngineError(RuntimeError):
+    """A case's engine did not start (its arch, precision or TFLOCK_LANES): every case would fail alike."""
+
+
+#: how the last line of a case's traceback starts when its engine did not start
+_ENGINE_ERROR = "tflock.engine.EngineError: "
+
+
 def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
-    """Run a case in a fresh Python process (its own engine settings and memory)."""
+    """Run a case in a fresh Python process (its own engine settings and memory). Raises CaseEngineError (the
+    engine's one-line message) where its engine did not start, RuntimeError where the case failed otherwise."""
     proc = subprocess.run([sys.executable, "-m", "tflock.bench", json.dumps(asdict(case))], capture_output=True,
                           text=True, timeout=timeout_s)
     if proc.returncode != 0:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        if tail.startswith(_ENGINE_ERROR):
+            raise CaseEngineError(tail.removeprefix(_ENGINE_ERROR))
         raise RuntimeError(f"bench case {case.model} n={case.n} {case.state} failed: {tail}")
     data = json.loads(proc.stdout.strip().splitlines()[-1])
     data["case"] = case

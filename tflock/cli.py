@@ -425,7 +425,7 @@ def bench(
         "Metrics cadence of the timed runs (run ms/step), >= 1; 0 = the model's default."))] = 0,
 ) -> None:
     """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under results/bench/."""
-    from tflock.bench import STATES, BenchCase, cases, default_out, run_in_subprocess, write_results
+    from tflock.bench import STATES, BenchCase, CaseEngineError, cases, default_out, run_in_subprocess, write_results
 
     names = [m for m in models_.split(",") if m] or list(MODEL_DESCRIPTIONS)
     for name in names:
@@ -459,8 +459,11 @@ def bench(
             progress.update(task, description=f"{case.model} n={case.n:,} {case.state}")
             try:
                 results.append(run_in_subprocess(case))
+            except CaseEngineError as e:  # (the same for every case: nothing would run)
+                progress.stop()
+                fail(str(e))
             except RuntimeError as e:
-                err.print(f"[yellow]skipped:[/] {e}", highlight=False)
+                err.print(f"[yellow]skipped:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
                 skipped.append((case, str(e)))
             progress.advance(task)
     table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, with metrics and "
