@@ -239,6 +239,21 @@ def test_help(tmp_path: Path, args: list[str]) -> None:
     assert ("--set" if args[0] == "sim" else "sim") in result.stdout
 
 
+def test_help_shows_the_brackets_of_every_option() -> None:
+    """Rich reads [...] in a help text as markup and drops it: every option's help shows its brackets (defaults,
+    extras) as written (``\\[`` in the source)."""
+    import typer
+    from typer.testing import CliRunner
+
+    from tflock.cli import app
+
+    for name, command in typer.main.get_command(app).commands.items():
+        shown = CliRunner().invoke(app, [name, "--help"], env={"COLUMNS": "1000"}).output
+        for param in command.params:
+            for written in re.findall(r"\\?\[[^]]*\]", getattr(param, "help", None) or ""):
+                assert written.lstrip("\\") in shown, f"tflock {name} --help: {param.name} lost {written}"
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Bad input: exit 2, one line on stderr naming the key, no traceback.
 

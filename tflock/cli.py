@@ -415,9 +415,9 @@ def bench(
         "--log/--no-log", help="Also time logging: one frame, and the same steps again with a frame each.")] = False,
     peers: Annotated[bool, typer.Option("--peers/--no-peers", help=(
         "Time the peers: the NumPy reference, and the cKDTree and Numba steps where scipy / numba are installed "
-        "(pip install tflock[bench])."))] = True,
+        "(pip install -e '.\\[bench]' in the repository)."))] = True,
     prefix: Annotated[Path | None, typer.Option("--out", help=(
-        "Results prefix (.json/.csv/.png added) [results/bench/bench-DATE-TIME]."))] = None,
+        "Results prefix (.json/.csv/.png added) \\[default: results/bench/bench-DATE-TIME]."))] = None,
     set_: Annotated[list[str] | None, typer.Option("--set", "-s", help=(
         "Override a model parameter of the default config, e.g. params.box=240 (lengths then scale with N to "
         "keep its density)."))] = None,
@@ -550,7 +550,8 @@ def sweep(
 def reproduce(
     name: Annotated[str | None, typer.Argument(help="Experiment (omit, or --list, to list them).")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (minutes at most; what CI runs).")] = False,
-    out_dir: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder [results/NAME].")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", "-o",
+                                                 help="Output folder \\[default: results/NAME].")] = None,
     workers: Annotated[int | None, typer.Option(help="Run sweep points on N local processes (Dask).")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler to run on: tcp://HOST:PORT.")] = None,
     list_: Annotated[bool, typer.Option("--list", help="List the experiments.")] = False,
