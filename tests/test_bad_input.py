@@ -13,6 +13,7 @@ which the tests enforce by making the engine's start-up fail loudly.
 
 import math
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -26,6 +27,7 @@ from hypothesis import strategies as st
 from pydantic import BaseModel, TypeAdapter
 
 from tflock.config import PARAMS_SCHEMAS, Config, load_config
+from tflock.preflight import check_viewer
 
 try:
     import tomllib
@@ -432,6 +434,20 @@ def test_spawn_without_a_display(workdir: Path, cpu_engine: Any, monkeypatch: py
 def test_connect_to_a_bad_url(workdir: Path, cpu_engine: Any) -> None:
     refused_cleanly(["sim", *SMALL, "--set", f"engine.precision={PRECISION}", "--connect", "notaurl"], workdir,
                     "notaurl")
+
+
+def test_connect_where_no_viewer_answers(workdir: Path, no_engine: None) -> None:
+    """Refused before anything starts: Rerun's sink would drop the whole run and say so only at its end. A port
+    that accepts connections passes the check."""
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        check_viewer(f"rerun+http://127.0.0.1:{listening.getsockname()[1]}/proxy")
+        with socket.socket() as closed:  # a port nothing listens on
+            closed.bind(("127.0.0.1", 0))
+            port = closed.getsockname()[1]
+    refused_cleanly(["sim", *SMALL, "--connect", f"rerun+http://127.0.0.1:{port}/proxy"], workdir,
+                    "--connect", "no Rerun viewer answers", f"127.0.0.1:{port}", "connection refused")
 
 
 # ----------------------------------------------------------------------------------------------------------

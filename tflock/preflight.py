@@ -1,4 +1,5 @@
-"""Checks a run passes before it allocates or writes anything: the memory it needs and writable output paths.
+"""Checks a run passes before it allocates or writes anything: the memory it needs, writable output paths and a
+viewer that answers where it streams to.
 
 The memory estimate counts, per agent, the arrays each model allocates (state, neighbour grid, graph metrics)
 and the larger of its host copies (the NumPy start-up draws, then the non-finite guard's copy of a good state)
@@ -9,15 +10,21 @@ arrays the models really allocate (:func:`tflock.bench.device_bytes`).
 """
 
 import os
+import socket
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from tflock.config import Config, ConfigError
 
 #: agent ids are 32-bit integers in every kernel
 MAX_AGENTS = 2**31 - 1
+#: the port of a Rerun viewer's gRPC server when the URL names none (the viewer's default), and how long to wait for it
+VIEWER_PORT = 9876
+VIEWER_SCHEMES = ("rerun", "rerun+http", "rerun+https")
+VIEWER_TIMEOUT_S = 3.0
 #: host bytes per agent of the start-up draws (a few float64 / int64 NumPy arrays, freed once uploaded)
 STARTUP_BYTES = 64
 
@@ -112,3 +119,22 @@ def check_writable(path: Path, what: str) -> None:
             raise PermissionError(13, "permission denied")
     except OSError as e:
         raise OSError(e.errno, f"cannot write the {what} to {path}: {e.strerror or e}") from None
+
+
+def check_viewer(url: str) -> None:
+    """Refuse a viewer URL (``--connect``) where nothing accepts a connection (ConnectionError "--connect: ..."):
+    Rerun's gRPC sink would drop everything the run logs, and say so only at its end, in a log line of its own. A
+    URL Rerun does not accept is its own error, raised when the sink is made."""
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname, parts.port or VIEWER_PORT
+    except ValueError:  # a port that is no number: Rerun's own error names the endpoint
+        return
+    if parts.scheme not in VIEWER_SCHEMES or not host:
+        return
+    try:
+        socket.create_connection((host, port), timeout=VIEWER_TIMEOUT_S).close()
+    except OSError as e:
+        reason = e.strerror or str(e) or type(e).__name__
+        raise ConnectionError(f"--connect: no Rerun viewer answers at {host}:{port} ({reason.lower()}); start one "
+                              "(rerun), or record to a file and open it later") from None

@@ -40,7 +40,7 @@ from tflock.metric_rows import MetricRows
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
 from tflock.outputs import Outputs, claim, first_free
-from tflock.preflight import check_memory
+from tflock.preflight import check_memory, check_viewer
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
 
@@ -178,6 +178,8 @@ class Simulation:
         record_path = None if not record else Path(record) if not isinstance(record, bool) else (
             Path(config.log.out) if config.log.out else None)
         check_memory(config)
+        if connect:
+            check_viewer(connect)
         self._outputs = Outputs()
         weakref.finalize(self, self._outputs.release)  # a Simulation never closed lets go of its outputs at exit
         self.recorder = None
