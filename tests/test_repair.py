@@ -10,6 +10,7 @@ import pytest
 from conftest import PRECISION, assert_one_error_line, invoke_in, tflock_process, wait_for_rows
 
 from tflock import outputs
+from tflock.cli import plural
 from tflock.record import read_recording, verify_recording
 from tflock.simulation import read_checkpoint
 
@@ -61,7 +62,7 @@ def test_repair_in_place_gives_a_verified_file_with_the_same_frames(killed: Path
     result = invoke_in(folder, ["repair", "k.rrd"])
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith("repaired k.rrd (rerun rrd verify passes)")
-    assert f"{before.frames} frames (steps 0 to {before.last_step})" in result.stdout
+    assert f"{plural(before.frames, 'frame')} (steps 0 to {before.last_step})" in result.stdout
     assert "its metrics table k.metrics.csv has rows up to step" in result.stdout
     assert verify_recording(folder / "k.rrd")
     after = read_recording(folder / "k.rrd")

@@ -108,6 +108,8 @@ def sim(
     t_start = time.perf_counter()
     if out_path is not None and out_path.suffix != ".rrd":
         fail(f"--out: must be a .rrd file, got {str(out_path)!r}")
+    if checkpoint is not None and checkpoint.suffix != ".npz":
+        fail(f"--checkpoint: must be a .npz file, got {str(checkpoint)!r}")
     if out_path is not None and no_log:
         fail("--out and --no-log: a run without a recording writes no .rrd; give one of them")
     overrides = list(set_ or [])
@@ -238,8 +240,11 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     for name in simulation.model.metric_descriptions:
         if name in last:
             table.add_row(name, f"{last[name]:.6g}")
-    table.add_row("steps/s", f"{rate:,.1f} (after the first step)")
-    table.add_row("agent-steps/s", f"{rate * cfg.params.n:,.3g}")
+    if loop_steps:
+        table.add_row("steps/s", f"{rate:,.1f} (after the first step)")
+        table.add_row("agent-steps/s", f"{rate * cfg.params.n:,.3g}")
+    else:
+        table.add_row("steps/s", "- (no step after the first)")
     table.add_row("start-up", f"{t_ready - t_start:.2f} s (Taichi init, first metrics; compile included)")
     table.add_row("first step", f"{first_step_s:.2f} s (compile included)")
     table.add_row("wall time", f"{t_end - t_start:.2f} s")
@@ -278,8 +283,7 @@ def view(
     """Open a recording in the Rerun viewer, or save a screenshot of it."""
     from tflock.record import open_viewer
 
-    if not path.is_file():
-        fail(f"recording not found: {path}")
+    _refuse_missing_recording(path)
     try:
         if screenshot is not None:
             from tflock.screenshot import take_screenshots
@@ -294,13 +298,25 @@ def view(
         pass
 
 
+def plural(count: int, noun: str) -> str:
+    """'1 frame', '2 frames'."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def _refuse_missing_recording(path: Path) -> None:
+    """A recording argument that names no file: missing, or a folder."""
+    if path.is_dir():
+        fail(f"{path} is a folder, not a recording (.rrd)")
+    if not path.is_file():
+        fail(f"recording not found: {path}")
+
+
 @app.command()
 def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> None:
     """Print a recording's model, config, frame count and final metrics, read back from the file."""
     from tflock.record import read_recording
 
-    if not path.is_file():
-        fail(f"recording not found: {path}")
+    _refuse_missing_recording(path)
     try:
         summary = read_recording(path)
     except ValueError as e:
@@ -311,8 +327,8 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
         fail(str(e) + (f"; if its run was killed, `tflock repair {path}` recovers what it holds" if cut else ""))
     out.print(f"[bold]{path}[/]", highlight=False)
     out.print(f"model: {summary.model}")
-    first = summary.steps[0] if summary.steps else None
-    out.print(f"frames: {summary.frames} (steps {first} to {summary.last_step})")
+    steps = f" (steps {summary.steps[0]} to {summary.last_step})" if summary.steps else ""
+    out.print(f"frames: {summary.frames}{steps}")
     out.print(f"metric rows: {summary.metric_rows}")
     table = Table(title="final metrics", show_header=False)
     for name, value in summary.final_metrics.items():
@@ -342,8 +358,8 @@ def repair(
         fail(e.strerror or str(e))
     summary = result.summary
     held = "" if summary is None or summary.last_step is None else (
-        f": {summary.frames} frames (steps {summary.steps[0]} to {summary.last_step}), "
-        f"{summary.metric_rows} metric rows")
+        f": {plural(summary.frames, 'frame')} (steps {summary.steps[0]} to {summary.last_step}), "
+        f"{plural(summary.metric_rows, 'metric row')}")
     if not result.rewritten:
         out.print(f"{result.path} is complete already (rerun rrd verify passes){held}", highlight=False,
                   soft_wrap=True)
@@ -371,11 +387,11 @@ def _last_table_step(table: Path) -> int | None:
     return None
 
 
-def _int_list(text: str, what: str) -> list[int]:
+def _int_list(text: str, what: str, example: str) -> list[int]:
     try:
         values = [int(float(v)) for v in text.split(",") if v.strip()]
     except (ValueError, OverflowError):  # not a number; nan or inf
-        fail(f"--{what}: expected comma-separated numbers such as 1e3,1e4, got {text!r}")
+        fail(f"--{what}: expected comma-separated numbers such as {example}, got {text!r}")
     if not values or min(values) <= 0:
         fail(f"--{what}: every value must be > 0, got {text!r}")
     return values
@@ -436,8 +452,10 @@ def bench(
         fail(f"--states: must be among {', '.join(STATES)}, got {states!r}")
     if arch not in ("cpu", "cuda", "vulkan", "auto") or precision not in ("f32", "f64"):
         fail(f"--arch / --precision: allowed cpu|cuda|vulkan|auto and f32|f64, got {arch!r} / {precision!r}")
-    if repeats < 1 or develop_steps < 0:
-        fail("--repeats must be >= 1 and --develop-steps >= 0")
+    if repeats < 1:
+        fail(f"--repeats: must be >= 1, got {repeats}")
+    if develop_steps < 0:
+        fail(f"--develop-steps: must be >= 0, got {develop_steps}")
     if metrics_every < 0:
         fail(f"--metrics-every: must be >= 1 (or 0: the model's default), got {metrics_every}")
     overrides = tuple(set_ or ())
@@ -445,8 +463,8 @@ def bench(
         if not expr.startswith("params.") or expr.startswith("params.n="):
             fail(f"--set: only model parameters other than params.n (set by --sizes) may change, got {expr!r}")
     todo: list[BenchCase] = []
-    for t in _int_list(threads, "threads") if threads != "0" else [0]:
-        todo += cases(names, _int_list(sizes, "sizes"), wanted_states, develop_steps=develop_steps,
+    for t in _int_list(threads, "threads", "1,2") if threads != "0" else [0]:
+        todo += cases(names, _int_list(sizes, "sizes", "1e3,1e4"), wanted_states, develop_steps=develop_steps,
                       repeats=repeats, threads=t, arch=arch, precision=precision, log=log, peers=peers,
                       overrides=overrides, metrics_every=metrics_every)
     prefix = prefix or default_out()

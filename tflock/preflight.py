@@ -118,7 +118,11 @@ def check_writable(path: Path, what: str) -> None:
         if path.exists() and not os.access(path, os.W_OK):
             raise PermissionError(13, "permission denied")
     except OSError as e:
-        raise OSError(e.errno, f"cannot write the {what} to {path}: {e.strerror or e}") from None
+        reason = e.strerror or str(e)
+        if isinstance(e, FileExistsError | NotADirectoryError):  # a file where the path needs a folder
+            blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+            reason = reason if blocking is None else f"{blocking} is a file, not a folder"
+        raise OSError(e.errno, f"cannot write the {what} to {path}: {reason}") from None
 
 
 def check_viewer(url: str) -> None:
