@@ -2,6 +2,7 @@
 `warning: ...` line for each, naming the key and its value; any other Python warning is one line too, and NumPy's
 overflow warnings on values beyond the float range are not printed at all (the guards report those)."""
 
+import shutil
 import warnings
 from pathlib import Path
 from typing import Any
@@ -9,7 +10,7 @@ from typing import Any
 import pytest
 from conftest import PRECISION, invoke_in
 
-from tflock.advice import TflockWarning, mistakes
+from tflock.advice import TflockWarning, mistakes, recording_bytes
 from tflock.config import load_config
 
 ENGINE = ["--set", f"engine.precision={PRECISION}", "--no-log"]
@@ -87,3 +88,28 @@ def test_positions_beyond_float32_are_drawn_without_numpy_warnings(cpu_engine: A
     result = invoke_in(tmp_path, ["sim", "--model", model, "--set", "params.box=1e300", "--set", "params.n=30",
                                   "--steps", "2", "--set", f"engine.precision={PRECISION}", "--out", "far.rrd"])
     assert warning_lines(result) == []
+
+
+def test_a_recording_larger_than_the_limit_or_the_disk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """2000 agents drawn every step for 100,000 steps is about 11 GB (a user's run wrote 10.5 GB): one warning line
+    naming log.every; a frame every 100 steps is not; a recording larger than the free space is, whatever its size."""
+    long = load_config(overrides=["params.n=2000", "params.box=31.6", "steps=100000"])
+    found = mistakes(long, recording=tmp_path / "k.rrd", drawn=2000)
+    assert len(found) == 1 and found[0].startswith("log.every (= 1): ")
+    assert "every step to step 100,000, up to about 11.6 GB" in found[0] and "\n" not in found[0]
+    thinned = load_config(overrides=["params.n=2000", "params.box=31.6", "steps=100000", "log.every=100"])
+    assert mistakes(thinned, recording=tmp_path / "k.rrd", drawn=2000) == []
+    assert mistakes(long, drawn=2000) == []  # no recording
+    monkeypatch.setattr("shutil.disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 10**6, 10**6))
+    short = load_config(overrides=["params.n=2000", "params.box=31.6", "steps=100"])
+    (line,) = mistakes(short, recording=tmp_path / "k.rrd", drawn=2000)
+    assert "up to about 0.0117 GB, more than the 0.001 GB free there" in line
+
+
+def test_the_recording_estimate_bounds_a_real_recording(make_sim: Any, tmp_path: Path) -> None:
+    """recording_bytes is an upper estimate, within 1.5x, of what a recording of drawn agents and edges takes."""
+    with make_sim(params={"n": 2000, "box": 31.6}, steps=50, record=tmp_path / "r.rrd") as sim:
+        sim.run()
+        estimate = recording_bytes(sim.config, len(sim._selected), sim._field_size)
+    size = (tmp_path / "r.rrd").stat().st_size
+    assert size <= estimate <= 1.5 * size, (size, estimate)

@@ -191,7 +191,8 @@ class Simulation:
         except BaseException:
             self.close()
             raise
-        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index)
+        warn_mistakes(config, checkpoint_every=checkpoint_every if checkpoint else 0, start_step=self.step_index,
+                      recording=record_path, drawn=len(self._selected), field=self._field_size)
 
     def _claim_outputs(self, record_path: Path | None, default_name: bool, checkpoint: Path | None,
                        checkpoint_every: int, resume: Path | None, overwrite: bool) -> tuple[Path | None, Path | None]:
