@@ -116,6 +116,8 @@ def test_default_run_records_under_recordings(default_run: Run, default_rrd: Pat
     rows = csv_rows(tables[0])
     assert len(rows) == default_run.steps + 1
     assert [int(row["step"]) for row in rows] == list(range(default_run.steps + 1))
+    assert list(rows[0])[:2] == ["step", "time"]  # the model's time, step * dt (Vicsek: dt = 1), as Simulation.metrics
+    assert [float(row["time"]) for row in rows] == [float(t) for t in range(default_run.steps + 1)]
     assert "polarization" in rows[0]
 
     assert "steps/s" in result.stdout

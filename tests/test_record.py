@@ -94,10 +94,11 @@ def test_write_verify_read(tmp_path: Path, dim: int, boundary: str, edges: bool,
 
     with open(path.with_suffix(".csv"), newline="") as f:
         rows = list(csv.reader(f))
-    assert rows[0] == ["step", "order", "speed"]
+    assert rows[0] == ["step", "time", "order", "speed"]
     assert len(rows) == STEPS + 1
     assert [int(r[0]) for r in rows[1:]] == list(range(STEPS))
-    assert float(rows[-1][1]) == last["order"]
+    assert [float(r[1]) for r in rows[1:]] == [step * 0.1 for step in range(STEPS)]  # step * dt
+    assert float(rows[-1][2]) == last["order"]
 
 
 def test_zero_edges_explicit_colors_and_subset_metrics(tmp_path: Path) -> None:
@@ -119,7 +120,7 @@ def test_zero_edges_explicit_colors_and_subset_metrics(tmp_path: Path) -> None:
     summary = read_recording(path)
     assert summary.frames == 2 and "/world/edges" in summary.entities
     assert summary.final_metrics == {"order": 0.5}
-    assert (tmp_path / "m.csv").read_text().splitlines() == ["step,order,speed", "0,0.5,"]
+    assert (tmp_path / "m.csv").read_text().splitlines() == ["step,time,order,speed", "0,0.0,0.5,"]
 
 
 def test_metric_rows_sent_as_columns_keep_their_steps_and_times(tmp_path: Path) -> None:
@@ -150,7 +151,7 @@ def test_metrics_table_only_and_validation(tmp_path: Path) -> None:
         assert not rec.enabled
         rec.log_frame(0, synthetic_frame(np.random.default_rng(3), 3))
         rec.log_metrics(0, {"order": 0.25, "speed": 2.0})
-    assert table.read_text().splitlines() == ["step,order,speed", "0,0.25,2.0"]
+    assert table.read_text().splitlines() == ["step,time,order,speed", "0,0.0,0.25,2.0"]
     assert list(tmp_path.iterdir()) == [table]
     with pytest.raises(ValueError, match="metric name"):
         Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={"a/b": "x"})

@@ -329,7 +329,7 @@ class Recorder:
             if self.metrics_table is not None:
                 self._csv_file = open(self.metrics_table, "w", newline="", encoding="utf-8")
                 self._csv = csv.writer(self._csv_file)
-                self._csv.writerow(["step", *self.metrics])
+                self._csv.writerow(["step", "time", *self.metrics])
                 self._csv_file.flush()
             if self.enabled:
                 if spawn:
@@ -730,7 +730,7 @@ class Recorder:
             cells = row.tolist()
             if present is not None:
                 cells = [cell if here else "" for cell, here in zip(cells, present.tolist(), strict=True)]
-            self._csv.writerow([int(step), *cells])
+            self._csv.writerow([int(step), int(step) * self.world.dt, *cells])
             self._csv_file.flush()
         if (self._rows.pending() >= METRIC_BATCH_ROWS
                 or time.monotonic() - self._pending_since >= METRIC_BATCH_S):
