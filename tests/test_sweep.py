@@ -270,6 +270,7 @@ def test_bad_input_is_one_line_and_exit_2(case: str, tmp_path: Path, monkeypatch
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
     assert needle in lines[0], lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", *(["sweep.toml"] if text is not None else [])]
 
 
 def test_a_point_that_turns_non_finite_is_one_line_and_exit_2(tmp_path: Path, cpu_engine) -> None:

@@ -53,8 +53,20 @@ def run_sweep(
         raise SweepError("--workers and --scheduler: give one of them, not both")
     out = Path(out) if out is not None else default_out(sweep.name)
     points_dir = out / "points"
+    made = [folder for folder in (points_dir, *points_dir.parents) if not folder.exists()]
     _writable(points_dir)
+    try:
+        return _run(sweep, out, points_dir, workers, scheduler, progress, start)
+    except BaseException:  # a sweep refused or stopped before its first point leaves no empty folders
+        for folder in made:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
 
+
+def _run(sweep: Sweep, out: Path, points_dir: Path, workers: int, scheduler: str | None,
+         progress: Callable[[int, int], None] | None, start: float) -> pd.DataFrame:
+    """:func:`run_sweep` once its points' folder exists."""
     report = progress or (lambda done, total: None)
     frames: dict[int, pd.DataFrame] = {}
     for point in sweep.points:
