@@ -336,8 +336,8 @@ def _counted_accelerations(begin, end, ids, p, v, u, count, r2cut, d2, dim: ti.t
             break
         d = ti.Matrix([[pos_sorted[a, k] - p[a, q] for q in ti.static(range(LANES))] for a in ti.static(range(dim))])
         r2 = ti.Vector([d[0, q] * d[0, q] for q in ti.static(range(LANES))])
-        # (as _lane_r2, which also returns no offsets: a helper returning both made LLVM permute the lanes' masks
-        # in this loop, 5 % slower in the metrics step's sums)
+        # (the squared distances as _lane_r2 sums them: one helper giving both the offsets and the distances made
+        # LLVM permute the lanes' masks in this loop, 5 % slower in the metrics step's sums)
         for a in ti.static(range(1, dim)):  # summed in the order of the per-agent kernel's norm_sqr
             r2 += ti.Vector([d[a, q] * d[a, q] for q in ti.static(range(LANES))])
         inside = (r2 < r2cut) & (ids != j)
