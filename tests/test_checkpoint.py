@@ -57,6 +57,24 @@ def test_every_model_resumes_bit_identically(make_sim, tmp_path, model, params):
         assert np.array_equal(column, resumed.metrics()[key], equal_nan=True), key
 
 
+@pytest.mark.parametrize("change", [{"params": {"noise": 6.0}}, {"seed": 5}, {"overrides": ["params.n=5"]},
+                                    {"engine": {"precision": "f32"}}], ids=["param", "seed", "n", "precision"])
+def test_a_resumed_run_takes_no_change_but_steps_threads_and_log(make_sim, tmp_path, change):
+    """The CLI's rule (--steps, --threads, --set log.*) in Python too: a changed parameter would make the run no
+    continuation of its checkpoint's, and a changed seed was reported by the config but never used."""
+    from tflock import ConfigError, Simulation
+
+    first = make_sim(params={"n": 200, "box": 10.0}, steps=20)
+    first.step(5)
+    path = first.save_checkpoint(tmp_path / "c.npz")
+    key = next(iter(change)) if "overrides" not in change else "params.n"
+    with pytest.raises(ConfigError, match=rf"^{key}\S*: a resumed run continues its checkpoint's config; only steps"):
+        Simulation(resume=path, steps=40, **change)
+    resumed = Simulation(resume=path, steps=40, log={"every": 5})  # allowed
+    resumed.run()
+    assert resumed.step_index == 40
+
+
 def tflock(*args, cwd):
     return subprocess.run([sys.executable, "-m", "tflock", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=300)

@@ -90,6 +90,21 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
+#: what a resumed run may change of its checkpoint's config: the steps (more of them), the threads and the logging
+RESUMABLE = ("steps", "engine.threads", "log.")
+
+
+def _refuse_resumed_changes(overrides: Mapping[str, Any]) -> None:
+    """A resumed run continues its checkpoint's run bit for bit: any other change (a parameter, the seed, the
+    precision) is a ConfigError naming it."""
+    flat: dict[str, Any] = {}
+    _flatten("", overrides, flat)
+    for key in flat:
+        if not (key in RESUMABLE or key.startswith("log.")):
+            raise ConfigError(f"{key}: a resumed run continues its checkpoint's config; only steps, engine.threads "
+                              "and log.* may change")
+
+
 def drawn_subset(n: int, max_agents: int, seed: int) -> np.ndarray:
     """Sorted ids of the agents drawn every frame: all of them, or the `max_agents` with the smallest hash."""
     if n <= max_agents:
@@ -173,6 +188,8 @@ class Simulation:
             elif overrides is not None:
                 merged.update(parse_override(expr) for expr in overrides)
             _flatten("", fields, merged)
+            if resume is not None:
+                _refuse_resumed_changes(merged)
             config = load_config(config, model=model, overrides=merged)
         self.config: Config = config
         record_path = None if not record else Path(record) if not isinstance(record, bool) else (
