@@ -435,8 +435,21 @@ def test_tee_file_and_grpc(tmp_path: Path) -> None:
             receiver.kill()
 
 
+def _outward_address() -> str | None:
+    """The IPv4 address this machine would reach other machines from (no packet is sent), or None where it has
+    only the loopback."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        try:
+            udp.connect(("10.255.255.255", 1))
+        except OSError:
+            return None
+        address = udp.getsockname()[0]
+    return None if address.startswith("127.") else address
+
+
 def test_open_viewer_web(tmp_path: Path) -> None:
-    """`open_viewer(web=True)` serves the web viewer until interrupted."""
+    """`open_viewer(web=True)` serves the web viewer until interrupted, on 127.0.0.1 only (Rerun's default binds
+    every interface)."""
     path = tmp_path / "view.rrd"
     write_run(path, 2, "periodic", edges=True, leader=False)
     web, grpc = _free_port(), _free_port()
@@ -455,6 +468,11 @@ def test_open_viewer_web(tmp_path: Path) -> None:
         _wait_for_port(web)
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=5) as resp:
             assert resp.status == 200
+        outward = _outward_address()  # this machine's address towards other machines: both ports closed there
+        if outward is not None:
+            for port in (web, grpc):
+                with socket.socket() as probe:
+                    assert probe.connect_ex((outward, port)) != 0, (outward, port)
         child.send_signal(signal.SIGINT)
         assert child.wait(timeout=10) == 0
     finally:

@@ -964,10 +964,12 @@ def _stop(proc: subprocess.Popen) -> None:
 
 def _web_command(path: Path, port: int | None, grpc_port: int | None) -> tuple[list[str], int, str]:
     """The command serving `path` in the web viewer, its HTTP port and the address to open (free ports where
-    None is given: several viewers can run at once)."""
+    None is given: several viewers can run at once). Both servers listen on 127.0.0.1 only (Rerun's default is
+    every interface): a remote machine's viewer is reached through an ssh tunnel (docs/recordings.md)."""
     port = free_port() if port is None else port
     grpc_port = free_port() if grpc_port is None else grpc_port
-    cmd = [*rerun_executable(), "--serve-web", str(path), "--web-viewer-port", str(port), "--port", str(grpc_port)]
+    cmd = [*rerun_executable(), "--serve-web", str(path), "--web-viewer-port", str(port), "--port", str(grpc_port),
+           "--bind", "127.0.0.1"]
     data_url = quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
     return cmd, port, f"http://127.0.0.1:{port}/?url={data_url}"
 
