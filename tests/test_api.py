@@ -38,3 +38,16 @@ def test_config_sources_and_overrides(cpu_engine, tmp_path):
     assert np.array_equal(a.state()["theta"], b.state()["theta"])
     with pytest.raises(ConfigError, match="params.n"):
         Simulation(path, params={"n": 0})
+
+
+def test_the_package_names_its_errors_and_lists_its_names():
+    """What api.md names is importable from the package, and dir() (tab completion) lists it though it loads
+    lazily."""
+    import tflock
+    from tflock.engine import EngineError
+    from tflock.simulation import NumericalFaultError
+
+    assert tflock.EngineError is EngineError and issubclass(EngineError, RuntimeError)
+    assert tflock.NumericalFaultError is NumericalFaultError
+    assert set(tflock.__all__) <= set(dir(tflock))
+    assert {"Simulation", "ConfigError", "EngineError", "load_config"} <= set(dir(tflock))

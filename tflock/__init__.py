@@ -1,7 +1,7 @@
 """tflock: large-N collective-motion (flocking) simulation on Taichi, recorded to Rerun.
 
     import tflock
-    sim = tflock.Simulation(model="vicsek", params={"n": 2000, "noise": 0.3}, steps=100)
+    sim = tflock.Simulation(model="vicsek", params={"n": 2000, "box": 31.6, "noise": 0.3}, steps=100)
     sim.step(100)
     table = sim.metrics()
 
@@ -15,7 +15,7 @@ from typing import Any
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # must precede the first `import taichi`
 
 __version__ = "0.1.0"
-__all__ = ["MODELS", "Config", "ConfigError", "Simulation", "load_config"]
+__all__ = ["MODELS", "Config", "ConfigError", "EngineError", "NumericalFaultError", "Simulation", "load_config"]
 
 _LAZY = {
     "Simulation": ("tflock.simulation", "Simulation"),
@@ -23,6 +23,8 @@ _LAZY = {
     "ConfigError": ("tflock.config", "ConfigError"),
     "load_config": ("tflock.config", "load_config"),
     "MODELS": ("tflock.config", "MODEL_DESCRIPTIONS"),
+    "EngineError": ("tflock.engine", "EngineError"),
+    "NumericalFaultError": ("tflock.simulation", "NumericalFaultError"),
 }
 
 
@@ -31,3 +33,8 @@ def __getattr__(name: str) -> Any:
         module, attr = _LAZY[name]
         return getattr(import_module(module), attr)
     raise AttributeError(f"module 'tflock' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The public names too (imported lazily, so not yet in the module's namespace): tab completion offers them."""
+    return sorted({*globals(), *__all__})

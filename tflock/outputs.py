@@ -156,8 +156,8 @@ def claim(path: Path, what: str, covers: Iterable[tuple[Path, str]] = (), *, ove
     existing = [f for f, _ in files if f.exists() and not (allowed is not None and _same_file(f, allowed))]
     if existing and not overwrite:
         held.release()
-        raise OutputExistsError(17, f"{existing[0]} exists (an earlier run's output); --overwrite replaces it, "
-                                    "or give another path")
+        raise OutputExistsError(17, f"{existing[0]} exists (an earlier run's output); --overwrite "
+                                    "(overwrite=True in Python) replaces it, or give another path")
     into.replaced += existing
     into.locks.append(held)
     return held
