@@ -460,7 +460,7 @@ def test_open_viewer_web(tmp_path: Path) -> None:
     )
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     child = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True, env=env,
-                             stderr=subprocess.DEVNULL)
+                             stderr=subprocess.DEVNULL, start_new_session=True)  # (its viewer too: killed as a group)
     try:
         assert child.stdout is not None
         line = child.stdout.readline()
@@ -477,7 +477,8 @@ def test_open_viewer_web(tmp_path: Path) -> None:
         assert child.wait(timeout=10) == 0
     finally:
         if child.poll() is None:
-            child.kill()
+            os.killpg(child.pid, signal.SIGKILL)  # a failed test leaves no rerun server behind
+            child.wait()
 
 
 def test_markers_are_drawn_on_their_own_entities(tmp_path: Path) -> None:
