@@ -154,7 +154,8 @@ def default_recording_path(model: str) -> Path:
 class Simulation:
     """One run of a model: build it from a config, step it, read its state and metrics, optionally record it.
 
-    ``config`` is a TOML path, a nested dict, a :class:`Config`, or None for the model's defaults. Keyword
+    ``config`` is a TOML path, a nested dict, a :class:`Config`, or None for the defaults of ``model`` (a name
+    from ``tflock models``; vicsek when neither is given). Keyword
     overrides are nested like the TOML (``params={"noise": 0.3}``, ``steps=100``) or dotted strings in
     ``overrides`` (``["params.noise=0.3"]``, the CLI's ``--set``). ``record`` is False, True (a file under
     ``recordings/``) or an ``.rrd`` path; ``spawn`` / ``connect`` stream to a viewer. ``checkpoint`` /
@@ -270,6 +271,7 @@ class Simulation:
 
     @property
     def step_index(self) -> int:
+        """The step the state is at (0: the start)."""
         return self.model.step_index
 
     def _open_recorder(self, path: Path | None, spawn: bool, connect: str | None) -> None:
@@ -435,7 +437,8 @@ class Simulation:
         return path
 
     def run(self, progress: Callable[[int], None] | None = None) -> None:
-        """Step up to the configured number of steps."""
+        """Step up to the configured number of steps (nothing once there: :meth:`step` goes on past them);
+        ``progress(step)`` as in :meth:`step`."""
         self.step(max(0, self.config.steps - self.model.step_index), progress)
 
     def sync(self) -> None:
@@ -498,6 +501,7 @@ class Simulation:
             self._outputs.release()
 
     def __enter__(self) -> Simulation:
+        """``with Simulation(...) as sim:`` closes the run (its recording, its outputs' locks) at the block's end."""
         return self
 
     def __exit__(self, *exc: object) -> None:
