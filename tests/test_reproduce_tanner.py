@@ -28,7 +28,7 @@ def test_tanner_quick_flocks_as_the_paper_proves(tmp_path, reproduce_quick):
         assert table.loc[case, "near_collision_fraction"] == 0
         assert table.loc[case, "min_distance_min"] > 0.3
     assert table.loc["switching", "single_min_distance_min"] > 0.2
-    # Fig. 6 and Theorem 2 (1): switching stops; the steady graph is well connected but not complete
+    # Fig. 6 and Theorem 2 (1): switching stops; the steady graph is not complete (section 6: connectivity "high")
     assert table.loc["switching", "valencies_constant_fraction"] == 1
     assert 4 < table.loc["switching", "valency_mean_final"] < 9
     assert table.loc["fixed-complete", "valency_mean_final"] == 9

@@ -43,6 +43,9 @@ class Experiment(ABC):
     title: str
     #: the paper, by file name in papers/, and the figures reproduced
     source: str
+    #: the report's words for the full size (not --quick): where the paper has no simulations of its own, or its
+    #: sizes are not in papers/, an experiment says whose sizes it runs
+    full_size: str = "the paper's size"
 
     def sweeps(self, quick: bool) -> dict[str, dict[str, Any]]:
         """Sweep specs by name (``name``, ``replicas``, ``seed``, ``set``, ``grid``, ``points``, ``model``)."""

@@ -60,6 +60,7 @@ class Jadbabaie(Experiment):
     title = "Jadbabaie-Lin-Morse: heading agreement under joint connectivity, without and with a leader"
     source = ("papers/000_2f186d2b28ac1296.txt: Theorems 1-2 (eqs. 1-2), the g > n rule (eqs. 17-20), "
               "Theorem 4 (leader, eq. 22); the paper has no figures or tables")
+    full_size = "ours (the paper has no simulations; the setup below)"
 
     def steps(self, quick: bool) -> int:
         return 500 if quick else 3000
@@ -297,13 +298,16 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
         f"every replica whose graph stayed connected agreed (Theorem 1; {int(connected['agreed'].sum())} of "
         f"{len(connected)})":
             len(connected) > 0 and bool(connected["agreed"].all()),
-        f"with a leader they follow theta0 (Theorem 4; r = {r_max:g}, followed: {share(lead, 'followed')})":
+        f"with a leader they follow theta0 (Theorem 4; periodic box, r = {r_max:g}, followed: "
+        f"{share(lead, 'followed')})":
             lead["followed"] == 1 and lead["max_gap_to_theta0"] < TOL,
-        "rule laplacian: theta_ss = mean theta(0), whatever the graphs": laplacian_gap < TOL,
+        "rule laplacian: theta_ss = mean theta(0), whatever the graphs (not stated in the paper: it follows from "
+        "eqs. 17-20, whose I - L / g keeps the mean of the headings)": laplacian_gap < TOL,
         f"isolated groups (open plane, r = {r_min:g}) do not agree (agreed {share(lone_open, 'agreed')}, split "
         f"for good {share(lone_open, 'split')}; our bar: at most a quarter agree, at least half split)":
             lone_open["agreed"] <= 0.25 and lone_open["split"] >= 0.5,
-        "no frozen disagreement in a connected graph": contradictions == 0,
+        "no frozen disagreement in a connected graph (not stated in the paper: a consequence of Theorem 1)":
+            contradictions == 0,
     }
     verdict = "agree" if all(checks.values()) else "do NOT fully agree"
     return "\n".join([

@@ -451,11 +451,10 @@ class LiWang(Experiment):
             notes.append(
                 f"Over alpha = {alphas[0]:g} to {alphas[-1]:g}, the paired difference between v0 = {speeds[0]:g} "
                 f"and v0 = {speeds[-1]:g} excludes zero at alpha = {', '.join(f'{a:g}' for a in moved) or 'none'}, "
-                f"largest {max(gaps.values(), key=lambda g: abs(g.value)).text(2, 'steps', 'pairs')}: what remains "
-                "of Fig. 5a's v0 independence is this dependence at small alpha. Our reading: the agents then move at "
-                "a fair fraction of v0 during the transient, and faster ones renew their neighbourhoods sooner, "
-                "which speeds the alignment; at large alpha nearly every agent stands still until its neighbourhood "
-                "agrees, whatever v0, and the curves meet. The paper's v0 values for Fig. 5a are not in its text.")
+                f"largest {max(gaps.values(), key=lambda g: abs(g.value)).text(2, 'steps', 'pairs')}; at alpha = "
+                f"{alphas[-1]:g} it is {gaps[alphas[-1]].text(2, 'steps', 'pairs')}: tau depends on v0 by about a "
+                "step, whose sign may change with alpha, where Fig. 5a shows none. The paper's v0 values for Fig. 5a "
+                "are not in its text.")
         densities = table[(table.figure == "5b") & table.tau.notna()]
         if len(densities):
             runs = _tau_runs(results)
@@ -502,8 +501,9 @@ class LiWang(Experiment):
             f"intervals ({BOOTSTRAP_RESAMPLES} resamples of the realisations of every point); 'largest residual': "
             "the farthest mean tau from the fitted line, in steps; 'unreached': the largest fraction of "
             "realisations of a curve whose mean speed never reached 0.98 v0 in the run, left out of the mean; the "
-            "N = 300, R = 2, v0 = 1 curve is shared by the three panels. A number agrees where the paper's, to the "
-            "precision it is printed with, lies within our interval:",
+            "N = 300, R = 2, v0 = 1 curve is shared by the three panels. A number agrees where a value the paper's "
+            "rounds from (its printed number +- half its last digit: 1.4 is 1.35 to 1.45) lies within our interval, "
+            "that is where the two intervals meet; with the paper's number alone, 1.4 against [1.41, 1.47] would not:",
             "",
             *lines,
             "",

@@ -111,7 +111,7 @@ def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed:
         files.append(path)
     table_path = out / "table.csv"
     _atomic_csv(outcome.table, table_path)
-    size = "quick (--quick: reduced sizes for CI)" if quick else "the paper's size"
+    size = "quick (--quick: reduced sizes for CI)" if quick else exp.full_size
     header = (f"# {exp.title}\n\nSource: {exp.source}. Size: {size}. "
               f"Command: `tflock reproduce {exp.name}{' --quick' if quick else ''}`. "
               f"Wall time of this invocation: {wall_s:.0f} s ({platform.processor() or platform.machine()}), "

@@ -23,7 +23,10 @@ DENSITY = 4.0
 class VicsekNoise(Experiment):
     name = "vicsek-noise"
     title = "Vicsek order-noise transition (polarization vs noise, density 4, several N)"
-    source = "Vicsek et al. 1995 Fig. 2a, as described in papers/000_2f186d2b28ac1296.txt section 1"
+    source = ("Vicsek et al., Phys. Rev. Lett. 75, 1226 (1995), Fig. 2a, which is not among the project's papers "
+              "(papers/000_2f186d2b28ac1296.txt section 1 describes the model without noise); the features below "
+              "are quoted from memory of the PRL, not checked against its text")
+    full_size = "N = 40, 100, 400 and 4000 at density 4, as in that figure (from memory of the PRL)"
 
     def sizes(self, quick: bool) -> list[int]:
         return [40, 400] if quick else [40, 100, 400, 4000]
@@ -88,12 +91,15 @@ class VicsekNoise(Experiment):
         return "\n".join([
             "Vicsek et al. (1995, Fig. 2a) report that v_a is close to 1 at small noise, decreases continuously with "
             "eta, and reaches the level of independent random headings (about 1 / sqrt(N)) at eta = 2 pi; the drop "
-            "sharpens as N grows at fixed density. Our measurement (mean over the second half of each run, averaged "
-            f"over replicas; mean [low, high] with the 95 % t interval over the replicas) {verdict} with that picture "
-            "(our bars: v_a above 0.9 at the lowest eta and below 3 / sqrt(N) at 2 pi, both by their whole "
-            "interval; no step up in eta beyond the two points' intervals):",
+            "sharpens as N grows at fixed density (not checked here). Setup: N agents in an L x L periodic box at "
+            "density N / L^2 = 4, R = 1, v0 = 0.03, the vector rule, noise xi uniform in [-eta/2, eta/2], eta from "
+            "0.25 to 2 pi, runs of 3000 steps (300 with --quick). Our measurement (mean over the second half of each "
+            "run, averaged over replicas; mean [low, high] with the 95 % t interval over the replicas) "
+            f"{verdict} with the other three features (our bars: v_a above 0.9 at the lowest eta and below "
+            "3 / sqrt(N) at 2 pi, both by their whole interval; no step up in eta beyond the two points' "
+            "intervals):",
             "",
             *lines,
             "",
-            "The PRL's exact curve is not in papers/, so the comparison is with these features, not point by point.",
+            "The PRL is not in papers/, so the comparison is with these features, not point by point.",
         ])
