@@ -90,8 +90,9 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
-#: what a resumed run may change of its checkpoint's config: the steps (more of them), the threads and the logging
-RESUMABLE = ("steps", "engine.threads", "log.")
+#: what a resumed run may change of its checkpoint's config besides the logging (log.*): the steps (more of them)
+#: and the threads
+RESUMABLE = ("steps", "engine.threads")
 
 
 def _refuse_resumed_changes(overrides: Mapping[str, Any]) -> None:
