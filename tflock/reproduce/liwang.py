@@ -501,9 +501,10 @@ class LiWang(Experiment):
             f"intervals ({BOOTSTRAP_RESAMPLES} resamples of the realisations of every point); 'largest residual': "
             "the farthest mean tau from the fitted line, in steps; 'unreached': the largest fraction of "
             "realisations of a curve whose mean speed never reached 0.98 v0 in the run, left out of the mean; the "
-            "N = 300, R = 2, v0 = 1 curve is shared by the three panels. A number agrees where a value the paper's "
-            "rounds from (its printed number +- half its last digit: 1.4 is 1.35 to 1.45) lies within our interval, "
-            "that is where the two intervals meet; with the paper's number alone, 1.4 against [1.41, 1.47] would not:",
+            "N = 300, R = 2, v0 = 1 curve is shared by the three panels. A number agrees where some value that "
+            "rounds to the paper's printed number (+- half its last digit: 1.4 is 1.35 to 1.45) lies within our "
+            "interval, that is where the two intervals meet; the printed number alone, 1.4 against [1.41, 1.47], "
+            "would not:",
             "",
             *lines,
             "",
