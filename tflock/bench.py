@@ -410,8 +410,8 @@ class CaseEngineError(RuntimeError):
     """A case's engine did not start (its arch, precision or TFLOCK_LANES): every case would fail alike."""
 
 
-#: how the last line of a case's traceback starts when its engine did not start
-_ENGINE_ERROR = "tflock.engine.EngineError: "
+#: the exit code of a case's process whose engine did not start (the engine's message: its last line on stderr)
+ENGINE_EXIT = 3
 
 
 def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
@@ -421,8 +421,8 @@ def run_in_subprocess(case: BenchCase, timeout_s: float = 3600) -> BenchResult:
                           text=True, timeout=timeout_s)
     if proc.returncode != 0:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        if tail.startswith(_ENGINE_ERROR):
-            raise CaseEngineError(tail.removeprefix(_ENGINE_ERROR))
+        if proc.returncode == ENGINE_EXIT:
+            raise CaseEngineError(tail)
         raise RuntimeError(f"bench case {case.model} n={case.n} {case.state} failed: {tail}")
     data = json.loads(proc.stdout.strip().splitlines()[-1])
     data["case"] = case
@@ -549,9 +549,15 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
 
 
 def _worker(argv: list[str]) -> None:
+    from tflock.engine import EngineError
+
     fields = json.loads(argv[0])
     case = BenchCase(**{**fields, "overrides": tuple(fields.get("overrides", ()))})
-    result = run_case(case)
+    try:
+        result = run_case(case)
+    except EngineError as error:  # the same for every case: the caller stops the bench with this line
+        print(error, file=sys.stderr)
+        sys.exit(ENGINE_EXIT)
     print(json.dumps({**asdict(result), "case": asdict(case)}))
 
 
