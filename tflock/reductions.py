@@ -23,7 +23,7 @@ def n_blocks(n: int) -> int:
     return max(1, math.ceil(n / BLOCK))
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=16)
 def scratch(shape: tuple[int, ...], dtype) -> ti.Ndarray:
     """An ndarray of this shape and dtype for a pass's partial results, made once and shared (making an ndarray
     costs about a millisecond in Taichi's front end): read it before the next pass of the same shape writes it."""

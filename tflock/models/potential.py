@@ -26,7 +26,6 @@ local. Both must not increase (dW/dt = -v^T (L x I) v, eq. 8 and 12) beyond the 
 """
 
 
-import functools
 import math
 from collections.abc import Mapping
 
@@ -69,7 +68,7 @@ from tflock.neighbors import (
     span_count,
     stencil_span,
 )
-from tflock.reductions import BLOCK, n_blocks, total
+from tflock.reductions import BLOCK, n_blocks, scratch, total
 from tflock.space import OPEN
 from tflock.taichi_host import host_array, host_view, small_host_view
 
@@ -114,12 +113,6 @@ def _pair_acceleration(p, v, q, w, d2):
     dvec = q - p
     r2 = dvec.norm_sqr()
     return (w - v) + 2.0 * (r2 - d2) / (r2 * r2) * dvec
-
-
-@functools.lru_cache(maxsize=4)
-def _block_partials(shape: tuple[int, int], dtype) -> ti.Ndarray:
-    """Scratch for :func:`_velocity_blocks` (kept out of the model: checkpoints hold the model's own arrays)."""
-    return ti.ndarray(dtype, shape)
 
 
 @ti.kernel
@@ -1197,7 +1190,7 @@ class Potential(GridModel):
             return (float(valency.sum()), float(valency.min()), float(valency.max()), total(self.energy, n),
                     float(nearest.min()))
         if self._totals is None:
-            partial = _block_partials((n_blocks(n), 5), ti.f64)
+            partial = scratch((n_blocks(n), 5), ti.f64)
             _pair_blocks(n, self.valency, self.energy, self.nearest, partial)
             blocks = partial.to_numpy()
             self._totals = (float(blocks[:, 0].sum()), float(blocks[:, 1].min()), float(blocks[:, 2].max()),
@@ -1215,7 +1208,7 @@ class Potential(GridModel):
         """Each velocity component's max and min over the agents, and sum_i |v_i|^2, from a kernel's block
         partials: the stability guard's numbers on GPU arches (the CPU reads the ndarray's memory in NumPy)."""
         n, dim = self.params.n, self.dim
-        partial = _block_partials((n_blocks(n), 2 * dim + 1), self.vel.dtype)
+        partial = scratch((n_blocks(n), 2 * dim + 1), self.vel.dtype)
         _velocity_blocks(n, dim, self.vel, partial)
         partial = partial.to_numpy().astype(np.float64)
         return partial[:, :dim].max(axis=0), partial[:, dim:2 * dim].min(axis=0), float(partial[:, 2 * dim].sum())
@@ -1228,8 +1221,8 @@ class Potential(GridModel):
         v = small_host_view(self.vel, n)
         if v is not None:
             return velocity_stats(v)
-        partial = _block_partials((n_blocks(n), _velocity_columns(dim)), ti.f64)
-        centre = _block_partials((dim,), ti.f64)
+        partial = scratch((n_blocks(n), _velocity_columns(dim)), ti.f64)
+        centre = scratch((dim,), ti.f64)
         _velocity_stats(n, dim, self.vel, centre, False, partial)
         sums = partial.to_numpy()
         centre.from_numpy(sums[:, :dim].sum(axis=0) / n)
