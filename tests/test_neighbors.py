@@ -542,6 +542,32 @@ def test_degrees_counted_in_the_pairs_pass_are_the_degree_pass_counts(engine, mo
 
 
 @union_find_only
+@pytest.mark.parametrize("arch", ["cpu", "cuda"])
+def test_the_pass_follows_the_arch_thresholds(engine, monkeypatch, arch):
+    """At Vicsek's default density (a mean degree of about 22) the CPU's thresholds take the sub-cell pass and
+    CUDA's the pairs pass (faster there up to a mean degree of about 40); at about 80 both take the sub-cells. The
+    pass runs on this test's engine whatever arch the thresholds are read for, and finds the brute-force
+    components."""
+    from dataclasses import replace
+
+    from tflock import components
+
+    info = replace(components.current_engine(), arch=arch)
+    monkeypatch.setattr(components, "current_engine", lambda: info)
+    rng = np.random.default_rng(11)
+    n, radius = 2000, 1.0
+    for degree, sub_cells in ((22.0, arch == "cpu"), (80.0, True)):
+        box = float(np.sqrt(n * np.pi * radius**2 / degree))
+        x = (rng.random((n, 2)) * box).astype(engine.real)
+        a = ref.adjacency(x, radius, "periodic", box)
+        _, sizes = np.unique(ref.components(a), return_counts=True)
+        found = components.Components(built_grid(engine, x, "periodic", box, radius), radius)
+        assert found.compute(a.sum(axis=1).mean()) == (len(sizes), sizes.max())
+        assert (found.slot_grid is not found.model_grid) == sub_cells
+        assert abs(a.sum(axis=1).mean() - degree) < 0.1 * degree
+
+
+@union_find_only
 def test_small_dense_swarms_take_the_pairs_pass(engine):
     """A flock dense enough for the sub-cell pass but of at most SUBCELL_MIN_AGENTS agents is joined by the pairs
     pass (the sub-cell grid's launches cost more there), with the brute-force components and counts."""

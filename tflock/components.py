@@ -29,6 +29,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from tflock.engine import current_engine
 from tflock.lane_graph import count_roots, local_root
 from tflock.neighbors import (
     CellGrid,
@@ -325,10 +326,12 @@ def pair_sizes(n, parent: ti.template(), size: ti.template(), result: ti.templat
     count_roots(n, parent, size, result)
 
 
-#: agents a sub-cell holds on average, at least, for the sub-cell pass to beat the pairs pass (with hysteresis:
-#: back to pairs below SPARSE_SUBCELL)
-DENSE_SUBCELL = 3.0
-SPARSE_SUBCELL = 2.0
+#: by arch: (agents a sub-cell holds on average, at least, for the sub-cell pass to beat the pairs pass; agents per
+#: occupied sub-cell below which a swarm that took it goes back to pairs, the hysteresis). On CUDA the pairs pass,
+#: which also counts the degrees there, stays ahead to denser swarms than on the CPU (an H200, 2026-11-28, Vicsek
+#: at 1e7, a run's ms a step, sub-cells against pairs: 17.2 / 15.6 at a mean degree of 22, 18.5 / 18.3 at 42,
+#: 17.1 / 23.9 at 83; benchmarks/cuda-subcells-ab.jsonl). Other arches take the CPU's.
+SUBCELL_OCCUPANCY = {"cpu": (3.0, 2.0), "cuda": (6.0, 4.0)}
 #: the sub-cell pass only for more agents than this: a smaller swarm's pairs pass, however dense, costs less than
 #: the sub-cell grid's build and passes (launches, most of it)
 SUBCELL_MIN_AGENTS = 256
@@ -357,6 +360,9 @@ class Components:
         self._model_slots.from_numpy(np.arange(n, dtype=np.int32))
         self._subcells: CellGrid | None = None  # allocated on first use
         self.dense = False  # the pass the next call takes without a hint: sub-cells (True) or pairs
+        engine = current_engine()
+        arch = engine.arch if engine is not None else "cpu"
+        self._dense_at, self._sparse_at = SUBCELL_OCCUPANCY.get(arch, SUBCELL_OCCUPANCY["cpu"])
         self.slot_grid = model_grid
 
     def _occupancy(self, mean_degree: float) -> float:
@@ -368,7 +374,7 @@ class Components:
     def compute(self, mean_degree: float | None = None) -> tuple[int, int]:
         """The number of components and the largest one's size, for the model grid's current build."""
         if mean_degree is not None:
-            self.dense = self._occupancy(mean_degree) >= DENSE_SUBCELL
+            self.dense = self._occupancy(mean_degree) >= self._dense_at
         if not self.takes_pairs():
             return self._by_subcells()
         return self._by_pairs()
@@ -395,7 +401,7 @@ class Components:
         clusters, largest, _ = (int(v) for v in self.result.to_numpy())
         self.slot_grid = grid
         edges = total(self.pairs, grid.n)
-        self.dense = self._occupancy(2.0 * edges / grid.n) >= DENSE_SUBCELL
+        self.dense = self._occupancy(2.0 * edges / grid.n) >= self._dense_at
         return clusters, largest
 
     def _by_subcells(self) -> tuple[int, int]:
@@ -420,7 +426,7 @@ class Components:
         _sizes(model_grid.n, g.total_buckets, grid.start, self.parent, self.merged, self.size, self.result)
         clusters, largest, occupied = (int(v) for v in self.result.to_numpy())
         self.slot_grid = grid
-        self.dense = model_grid.n / max(1, occupied) >= SPARSE_SUBCELL
+        self.dense = model_grid.n / max(1, occupied) >= self._sparse_at
         return clusters, largest
 
     def _allocate_subcells(self) -> None:
