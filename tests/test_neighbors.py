@@ -453,11 +453,11 @@ def test_announced_frame_is_the_frame_drawn_by_its_own_pass(make_sim, model_name
             np.testing.assert_array_equal(getattr(announced, name), getattr(drawn, name), err_msg=name)
 
 
-def swarm(kind, n, dim, box, radius, rng, boundary="periodic"):
+def swarm(kind, n, dim, box, radius, rng, boundary="periodic", spread=1.5):
     """Positions for the components' tests: one dense flock (astride the corner of a periodic box, where it wraps;
-    in the middle of others), or many small clusters in a sparse field."""
+    in the middle of others; a normal spread of `spread` R), or many small clusters in a sparse field."""
     if kind == "one flock":
-        x = rng.normal(size=(n, dim)) * radius * 1.5 + (0.0 if boundary == "periodic" else box / 2)
+        x = rng.normal(size=(n, dim)) * radius * spread + (0.0 if boundary == "periodic" else box / 2)
     else:
         centres = rng.random((n // 8, dim)) * box
         x = centres[rng.integers(len(centres), size=n)] + rng.normal(size=(n, dim)) * radius * 0.3
@@ -569,20 +569,21 @@ def test_the_pass_follows_the_arch_thresholds(engine, monkeypatch, arch):
 
 @union_find_only
 def test_small_dense_swarms_take_the_pairs_pass(engine):
-    """A flock dense enough for the sub-cell pass but of at most SUBCELL_MIN_AGENTS agents is joined by the pairs
-    pass (the sub-cell grid's launches cost more there), with the brute-force components and counts."""
+    """A flock dense enough for the sub-cell pass (on every arch: a mean degree above 38) but of at most
+    SUBCELL_MIN_AGENTS agents is joined by the pairs pass (the sub-cell grid's launches cost more there), with the
+    brute-force components and counts."""
     from tflock.components import SUBCELL_MIN_AGENTS
 
     rng = np.random.default_rng(5)
     box, radius = 12.0, 1.0
-    x = swarm("one flock", SUBCELL_MIN_AGENTS, 2, box, radius, rng).astype(engine.real)
+    x = swarm("one flock", SUBCELL_MIN_AGENTS, 2, box, radius, rng, spread=0.8).astype(engine.real)
     graph = NeighbourGraph(built_grid(engine, x, "periodic", box, radius))
     got = graph.compute(radius, box)
     assert graph._components.dense and graph._components.slot_grid is graph.grid  # dense, yet the pairs pass
     want = ref.graph_metrics(x, radius, "periodic", box)
     assert (got["clusters"], got["max_neighbors"]) == (want["clusters"], want["max_neighbors"])
     assert got["largest_cluster"] == pytest.approx(want["largest_cluster"])
-    assert got["mean_neighbors"] == pytest.approx(want["mean_neighbors"]) and want["mean_neighbors"] > 10
+    assert got["mean_neighbors"] == pytest.approx(want["mean_neighbors"]) and want["mean_neighbors"] > 40
 
 
 @pytest.mark.parametrize("boundary,dim,bounded", [("periodic", 2, False), ("reflecting", 2, False),
@@ -621,11 +622,11 @@ def test_small_swarms_graph_in_one_launch(engine, monkeypatch, boundary, dim, bo
 @pytest.mark.parametrize("density", ["sparse", "dense"])
 def test_replica_components_match_brute_force(engine, boundary, density):
     """A batch of replicas (one grid, no edge across replicas): each replica's clusters and S are its own, by
-    the pass its density picks."""
+    the pass its density picks (dense: a mean degree above 38, the sub-cells on every arch)."""
     rng = np.random.default_rng(11)
     kind = "one flock" if density == "dense" else "many clusters"
     box, radius, per = (10.0 if density == "dense" else 25.0), 1.0, 300
-    xs = [swarm(kind, per, 2, box, radius, rng, boundary).astype(engine.real) for _ in range(3)]
+    xs = [swarm(kind, per, 2, box, radius, rng, boundary, spread=0.8).astype(engine.real) for _ in range(3)]
     grid = built_grid(engine, np.concatenate(xs), boundary, box, radius, replicas=3)
     graph = NeighbourGraph(grid)
     got = graph.compute_replicas(radius, box)
@@ -636,3 +637,4 @@ def test_replica_components_match_brute_force(engine, boundary, density):
         assert got["largest_cluster"][r] == pytest.approx(want["largest_cluster"])
         assert got["mean_neighbors"][r] == pytest.approx(want["mean_neighbors"])
         assert got["max_neighbors"][r] == want["max_neighbors"]
+        assert (want["mean_neighbors"] > 40) == (density == "dense")
