@@ -719,7 +719,8 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     from tflock.record import LABEL_RISE, _label_width
 
     legend = ColorLegend("agents: speed", entries=(("|v| = 0", (90, 90, 255)), ("|v| = 0.5", (40, 200, 90)),
-                                                   ("|v| >= 1", (255, 60, 60))))
+                                                   ("|v| >= 1", (255, 60, 60))),
+                         notes=(("the leader", (255, 255, 255)), ("dimmed: no update this step", (76, 76, 76))))
     path = tmp_path / "legend.rrd"
     with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS, path=path,
                   legend=legend, field=True):
@@ -740,12 +741,47 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     level_starts = levels[:, 0] - np.array([_label_width(label) for label in level_labels]) / 2
     assert np.all(level_starts > swatches[:, 0].max())
     ends = names[:, 0] + np.array([_label_width(label) for label in labels]) / 2
-    assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
+    # the notes: each name level with its dot and right of it, all right of the category names
+    marks = np.array(_last(batches["/legend/notes"], "Points2D:positions"))
+    notes = np.array(_last(batches["/legend/notes/names"], "Points2D:positions"))
+    note_labels = _last(batches["/legend/notes/names"], "Points2D:labels")
+    assert note_labels == [label for label, _ in legend.notes]
+    np.testing.assert_allclose(notes[:, 1], marks[:, 1] - LABEL_RISE, atol=1e-6)
+    assert np.all(notes[:, 0] - np.array([_label_width(label) for label in note_labels]) / 2 > marks[:, 0])
+    assert marks[:, 0].min() > ends.max()
+    note_ends = notes[:, 0] + np.array([_label_width(label) for label in note_labels]) / 2
+    assert swatches[:, 0].min() > note_ends.max()  # the field's swatches right of the notes
+    # the field's headings named under its columns, below the last row, apart from each other
+    headings = np.array(_last(batches["/legend/field/headings"], "Points2D:positions"))
+    heading_labels = _last(batches["/legend/field/headings"], "Points2D:labels")
+    assert heading_labels == ["0°", "90°", "180°", "270°"]
+    assert np.all(np.isin(np.round(headings[:, 0], 5), np.round(swatches[:, 0], 5)))
+    assert headings[:, 1].min() > swatches[:, 1].max()
+    widths = np.array([_label_width(label) for label in heading_labels])
+    assert np.all(np.diff(headings[:, 0]) > (widths[1:] + widths[:-1]) / 2)
 
 
-def test_plots_paged_in_tabs_of_twelve(tmp_path: Path) -> None:
-    """More than PLOTS_PER_TAB plots go to a second tab, "metrics 2", so that each plot keeps a readable height (the
-    default Vicsek run has 13 plots: 15 rows of 50 px in one tab at 1280 x 800)."""
+@pytest.mark.parametrize("params,notes", [({}, []), ({"leader": {"enabled": True}}, ["the leader"]),
+                                          ({"async_bound": 10}, ["dimmed: no update this step"])])
+def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(params: dict, notes: list[str]) -> None:
+    """Vicsek's colours view names the marks that are not on its heading wheel: the leader (white) and, with
+    asynchrony, the agents dimmed because they did not update at this step."""
+    import tflock
+    from tflock.frame import LEADER_COLOR
+    from tflock.models.vicsek import ASYNC_DIM
+
+    sim = tflock.Simulation(model="vicsek", params={"n": 50, "box": 7.0, **params}, steps=20, record=False)
+    legend = sim.model.color_legend
+    assert legend.wheel and [label for label, _ in legend.notes] == notes
+    colors = dict(legend.notes)
+    assert colors.get("the leader", LEADER_COLOR) == LEADER_COLOR
+    assert colors.get("dimmed: no update this step", (76, 76, 76)) == (int(255 * ASYNC_DIM),) * 3
+    sim.close()
+
+
+def test_plots_paged_in_tabs_of_six(tmp_path: Path) -> None:
+    """More than PLOTS_PER_TAB plots go to a second tab, "metrics 2", so that each plot keeps a readable height with
+    its axis labels (12 a tab left about 70 px a plot at 1600 x 1000, some of them without y labels)."""
     from tflock.record import PLOTS_PER_TAB
 
     metrics = {f"m{k}": f"metric {k}" for k in range(PLOTS_PER_TAB + 2)}
@@ -754,6 +790,7 @@ def test_plots_paged_in_tabs_of_twelve(tmp_path: Path) -> None:
         for step in range(3):
             rec.log_metrics(step, {name: float(step * k) for k, name in enumerate(metrics)})
     names = _layout_names(path)
+    assert PLOTS_PER_TAB == 6
     assert "metrics" in names and "metrics 2" in names and "metrics 3" not in names
     assert all(f"m{k}" in names for k in range(1, PLOTS_PER_TAB + 2)) and "constant: m0" in names
 

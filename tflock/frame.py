@@ -53,12 +53,18 @@ class WorldSpec:
 @dataclass(frozen=True)
 class ColorLegend:
     """What the agents' colours mean, drawn beside the world view: the hue wheel of headings (``wheel``), or named
-    colours (a speed ramp's stops, a model's categories) as ``entries`` of (label, (r, g, b))."""
+    colours (a speed ramp's stops, a model's categories) as ``entries`` of (label, (r, g, b)); ``notes``, beside
+    either, name marks that are not on the wheel or the ramp (the leader, agents dimmed by asynchrony) in the same
+    (label, (r, g, b)) form."""
 
     title: str
     wheel: bool = False
     entries: tuple[tuple[str, tuple[int, int, int]], ...] = ()
+    notes: tuple[tuple[str, tuple[int, int, int]], ...] = ()
 
+
+#: the leader's colour in the world view (Vicsek's leader following)
+LEADER_COLOR = (255, 255, 255)
 
 #: the legend of agents coloured by the hue of their heading (Vicsek, adaptive)
 HEADING_LEGEND = ColorLegend("agents: heading", wheel=True)

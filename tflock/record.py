@@ -53,7 +53,16 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
-from tflock.frame import BOUNDARIES, ColorLegend, Frame, Marker, WorldSpec, angle_colors, heading_colors
+from tflock.frame import (
+    BOUNDARIES,
+    LEADER_COLOR,
+    ColorLegend,
+    Frame,
+    Marker,
+    WorldSpec,
+    angle_colors,
+    heading_colors,
+)
 from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips, time_columns
 from tflock.metric_log import MetricRows
 
@@ -90,7 +99,6 @@ METRICS = "metrics"
 PROFILES = "profiles"
 
 SPAWN_PORT = 9876
-LEADER_COLOR = (255, 255, 255)
 EDGE_COLOR = (200, 200, 200, 110)
 BOUNDS_COLOR = (200, 200, 200)
 #: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
@@ -193,8 +201,12 @@ def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
 #: a 10,000-step Tanner recording opened in the web viewer showed steps 8900-10300 in every plot.
 WHOLE_RUN = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infinite(),
                                                  end=rr.TimeRangeBoundary.infinite()))
-#: plots in a tab at most (6 rows of 2; about 90 px a plot at 1280 x 800): more go to a tab "metrics 2"
-PLOTS_PER_TAB = 12
+#: the colours view's spacing of the field's swatch columns (its own units: the wheel's radius is 1), wide enough for
+#: a heading's name in degrees under every other column (a label of 4 characters is 38 px wide)
+SWATCH_STEP = 0.45
+#: plots in a tab at most (3 rows of 2; about 150 px a plot at 1280 x 800, where 12 left about 70 px, too little for
+#: their axis labels): more go to tabs "metrics 2", "metrics 3"
+PLOTS_PER_TAB = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
 def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
@@ -490,7 +502,8 @@ class Recorder:
 
     def _log_legend(self) -> None:
         """The colours view (static, its own y-up picture): the hue wheel of headings as 24 arrows, or a column of
-        named colours; to its right the field's colours (a sweep of headings at three densities, and disordered)."""
+        named colours, and right of either the legend's notes; to their right the field's colours (a sweep of headings,
+        named in degrees, at three densities, and disordered)."""
         rec, legend = self.rec, self.legend
         x = 0.0
         title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}
@@ -521,24 +534,44 @@ class Recorder:
                 rec.log(f"{LEGEND}/entries/names", rr.Points2D(np.array(text, np.float32), radii=0.0, labels=labels,
                                                                colors=colors, show_labels=True), static=True)
                 x = -0.55 + max(_label_width(label) for label in labels) + 0.6
+            if legend.notes:  # right of the wheel or the entries, a dot and its name each, in rows as the field's
+                labels, colors = [label for label, _ in legend.notes], [c for _, c in legend.notes]
+                dot = x - 0.3
+                where = np.array([(dot, -0.9 + 0.55 * k) for k in range(len(labels))], np.float32)
+                rec.log(f"{LEGEND}/notes", rr.Points2D(where, colors=colors, radii=rr.Radius.ui_points(6.0)),
+                        static=True)
+                text = [(dot + 0.25 + _label_width(label) / 2, y - LABEL_RISE) for label, y in zip(labels, where[:, 1],
+                                                                                                  strict=True)]
+                rec.log(f"{LEGEND}/notes/names", rr.Points2D(np.array(text, np.float32), radii=0.0, labels=labels,
+                                                             colors=[(200, 200, 200)] * len(labels),
+                                                             show_labels=True), static=True)
+                x = dot + 0.25 + max(_label_width(label) for label in labels) + 0.6
         if self.field:
             colors = class_colors()[:, :3]
             hues = np.arange(0, 24, 3)
             swatches, swatch_colors = [], []
             for row, (level, ordered) in enumerate([(4, 1), (2, 1), (0, 1), (2, 0)]):
                 for col, h in enumerate(hues):
-                    swatches.append((x + 0.22 * col, -0.9 + 0.55 * row))
+                    swatches.append((x + SWATCH_STEP * col, -0.9 + 0.55 * row))
                     swatch_colors.append(colors[class_of(int(h), level, ordered)])
             rec.log(f"{LEGEND}/field", rr.Points2D(np.array(swatches, np.float32), colors=np.array(swatch_colors),
                                                    radii=rr.Radius.ui_points(6.0)), static=True)
             notes = ["dense", "mean density", "sparse", "disordered"]
-            start = x + 0.22 * (len(hues) - 1) + 0.3  # the names start right of the last swatch, level with its row
+            # the names start right of the last swatch, level with its row
+            start = x + SWATCH_STEP * (len(hues) - 1) + 0.3
             where = np.array([[start + _label_width(note) / 2, -0.9 + 0.55 * r - LABEL_RISE]
                               for r, note in enumerate(notes)], np.float32)
             rec.log(f"{LEGEND}/field/levels", rr.Points2D(where, radii=0.0, labels=notes, show_labels=True,
                                                           colors=[(200, 200, 200)] * 4), static=True)
-            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 0.8, -1.85]], labels="field of all agents", **title),
-                    static=True)
+            # the headings of the swatch columns, named under the last row (hues as on the agents' wheel; the agents
+            # themselves may be coloured by something else, as potential's by speed)
+            columns = [0, 2, 4, 6]
+            where = np.array([(x + SWATCH_STEP * c, -0.9 + 0.55 * 3 + 10.0 / LEGEND_PX) for c in columns], np.float32)
+            rec.log(f"{LEGEND}/field/headings", rr.Points2D(where, radii=0.0, show_labels=True,
+                                                            labels=[f"{15 * int(hues[c])}°" for c in columns],
+                                                            colors=[(200, 200, 200)] * len(columns)), static=True)
+            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 3.5 * SWATCH_STEP, -1.85]],
+                                                         labels="field: heading, density", **title), static=True)
 
     # ------------------------------------------------------------------ logging
     def _set_time(self, step: int) -> None:
@@ -611,7 +644,8 @@ class Recorder:
             if frame.leader is not None:
                 lead = _f32("leader", np.reshape(frame.leader, (1, -1)), (1, dim))
             self._draw(shapes, LEADER, Points, {"positions": lead},
-                       {"colors": LEADER_COLOR, "radii": rr.Radius.ui_points(2.5 * radius), **markers})
+                       {"colors": LEADER_COLOR, "radii": rr.Radius.ui_points(2.5 * radius), "labels": "leader",
+                        **markers})
             self._leader_drawn = True
             has_heading = frame.leader is not None and frame.leader_direction is not None
             if has_heading or self._leader_heading_drawn:

@@ -43,7 +43,7 @@ from tflock.cpu_tasks import TASK_STRIDE, one_thread, task_at
 from tflock.engine import EngineInfo
 from tflock.fastmath import atan2, cos_sin, opaque_copy, sin_cos
 from tflock.field import ANGLES, UNIT_VECTORS
-from tflock.frame import Frame, WorldSpec, angle_colors, arrow_length
+from tflock.frame import HEADING_LEGEND, LEADER_COLOR, ColorLegend, Frame, WorldSpec, angle_colors, arrow_length
 from tflock.lane_graph import (
     NO_LABEL,
     LaneComponents,
@@ -117,6 +117,8 @@ FUSED_MAX_AGENTS = 4096
 #: thread) up to this many agents
 SERIAL_MAX_AGENTS = 1024
 TWO_PI = 2 * math.pi
+#: brightness, against an updated agent's colour, of a drawn agent that did not update at this step (asynchrony)
+ASYNC_DIM = 0.3
 
 
 def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
@@ -1218,7 +1220,7 @@ class Vicsek(GridModel):
                 drawing.located()
         colors = angle_colors(drawn[2, :, 0])  # from the headings themselves: no atan2 of the directions
         if self.asynchronous:
-            dim = np.where(drawn[2, :, 1] > 0, 1.0, 0.3)[:, None]
+            dim = np.where(drawn[2, :, 1] > 0, 1.0, ASYNC_DIM)[:, None]
             colors = (colors * dim).astype(np.uint8)
         leader = leader_direction = None
         if p.leader.enabled:
@@ -1244,6 +1246,18 @@ class Vicsek(GridModel):
             fields=fields,
             profiles=profiles,
         )
+
+    @property
+    def color_legend(self) -> ColorLegend:
+        """The hue wheel of headings, with notes for the leader (white, larger, labelled) and, with asynchrony,
+        the agents dimmed to :data:`ASYNC_DIM` of their colour because they did not update at this step (white at
+        that brightness)."""
+        notes = []
+        if self.params.leader.enabled:
+            notes.append(("the leader", LEADER_COLOR))
+        if self.asynchronous:
+            notes.append(("dimmed: no update this step", tuple(int(ASYNC_DIM * 255) for _ in range(3))))
+        return ColorLegend(HEADING_LEGEND.title, wheel=True, notes=tuple(notes))
 
     def _leader_row(self) -> np.ndarray:
         """x, y, theta, updated of the leader, agent 0 (grid current), through a scratch row made once (making an
