@@ -354,7 +354,7 @@ def _comparison(table: pd.DataFrame, real: pd.DataFrame, results: Results) -> st
         "the 95 % interval of the paired difference excludes zero).",
         "",
         f"**Of {len(verdicts)} stated conclusions, {tally[AGREES]} agree with our data, {tally[PARTLY]} partly, "
-        f"{tally[DISAGREES]} do not.**",
+        f"{tally[DISAGREES]} {'does' if tally[DISAGREES] == 1 else 'do'} not.**",
         "",
         "| the paper's conclusion | our data |",
         "|---|---|",
