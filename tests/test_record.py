@@ -763,14 +763,15 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("params,notes", [({}, []), ({"leader": {"enabled": True}}, ["the leader"]),
                                           ({"async_bound": 10}, ["dimmed: no update this step"])])
-def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(params: dict, notes: list[str]) -> None:
+def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(cpu_engine, params: dict, notes: list[str]) -> None:
     """Vicsek's colours view names the marks that are not on its heading wheel: the leader (white) and, with
     asynchrony, the agents dimmed because they did not update at this step."""
     import tflock
     from tflock.frame import LEADER_COLOR
     from tflock.models.vicsek import ASYNC_DIM
 
-    sim = tflock.Simulation(model="vicsek", params={"n": 50, "box": 7.0, **params}, steps=20, record=False)
+    sim = tflock.Simulation(model="vicsek", params={"n": 50, "box": 7.0, **params}, steps=20, record=False,
+                            engine={"precision": cpu_engine.precision})
     legend = sim.model.color_legend
     assert legend.wheel and [label for label, _ in legend.notes] == notes
     colors = dict(legend.notes)
