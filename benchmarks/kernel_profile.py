@@ -13,8 +13,22 @@ import cProfile
 import io
 import pstats
 import time
+from collections.abc import Callable
 
 import taichi as ti
+
+
+def python_profile(run: Callable[[], object], order: str, lines: int) -> str:
+    """Python's profile of `run` until the GPU has finished its work (ti.sync), the first `lines` functions by
+    `order` ("tottime", "cumulative")."""
+    profile = cProfile.Profile()
+    profile.enable()
+    run()
+    ti.sync()
+    profile.disable()
+    out = io.StringIO()
+    pstats.Stats(profile, stream=out).sort_stats(order).print_stats(lines)
+    return out.getvalue()
 
 
 def main() -> None:
@@ -42,14 +56,7 @@ def main() -> None:
     print(args.model, case.n, "ms/step (profiled)", round((time.perf_counter() - start) * 100, 2))
     ti.profiler.print_kernel_profiler_info()
     ti.profiler.clear_kernel_profiler_info()
-    profile = cProfile.Profile()
-    profile.enable()
-    sim.step(10)
-    ti.sync()
-    profile.disable()
-    out = io.StringIO()
-    pstats.Stats(profile, stream=out).sort_stats("tottime").print_stats(18)
-    print(out.getvalue())
+    print(python_profile(lambda: sim.step(10), "tottime", 18))
 
 
 if __name__ == "__main__":

@@ -7,16 +7,14 @@ by step; Python's profile of a restored run; the inclusive time of each part of 
 call fenced by ``ti.sync()``; and three probes of the host round trip (a small ``to_numpy``, a kernel with a NumPy
 argument, an allocation of N values)."""
 import collections
-import cProfile
 import functools
-import io
-import pstats
 import statistics
 import sys
 import time
 
 import numpy as np
 import taichi as ti
+from kernel_profile import python_profile  # benchmarks/, this script's folder, is on sys.path
 from taichi.lang._ndarray import ScalarNdarray
 
 from tflock import components, metrics, observables, simulation
@@ -68,14 +66,7 @@ print(f"advance {[round(p, 2) for p in per_adv]}\nmetrics {[round(p, 2) for p in
 
 # 3. cProfile of a restored run (where the host waits)
 start_run(model, start, 1, False)
-prof = cProfile.Profile()
-prof.enable()
-sim.step(10)
-ti.sync()
-prof.disable()
-out = io.StringIO()
-pstats.Stats(prof, stream=out).sort_stats("cumulative").print_stats(30)
-print(out.getvalue()[:6000], flush=True)
+print(python_profile(lambda: sim.step(10), "cumulative", 30)[:6000], flush=True)
 
 # 4. inclusive times of the metrics' and guard's parts, each call fenced by syncs
 T = collections.defaultdict(list)
