@@ -720,7 +720,7 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
 
     legend = ColorLegend("agents: speed", entries=(("|v| = 0", (90, 90, 255)), ("|v| = 0.5", (40, 200, 90)),
                                                    ("|v| >= 1", (255, 60, 60))),
-                         notes=(("the leader", (255, 255, 255)), ("dimmed: no update this step", (76, 76, 76))))
+                         notes=(("the leader", (255, 255, 255)), ("dimmed: not updated", (76, 76, 76))))
     path = tmp_path / "legend.rrd"
     with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS, path=path,
                   legend=legend, field=True):
@@ -741,6 +741,7 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     level_starts = levels[:, 0] - np.array([_label_width(label) for label in level_labels]) / 2
     assert np.all(level_starts > swatches[:, 0].max())
     ends = names[:, 0] + np.array([_label_width(label) for label in labels]) / 2
+    assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
     # the notes: each name level with its dot and right of it, all right of the category names
     marks = np.array(_last(batches["/legend/notes"], "Points2D:positions"))
     notes = np.array(_last(batches["/legend/notes/names"], "Points2D:positions"))
@@ -762,7 +763,7 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("params,notes", [({}, []), ({"leader": {"enabled": True}}, ["the leader"]),
-                                          ({"async_bound": 10}, ["dimmed: no update this step"])])
+                                          ({"async_bound": 10}, ["dimmed: not updated"])])
 def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(cpu_engine, params: dict, notes: list[str]) -> None:
     """Vicsek's colours view names the marks that are not on its heading wheel: the leader (white) and, with
     asynchrony, the agents dimmed because they did not update at this step."""
@@ -776,7 +777,7 @@ def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(cpu_engine, params
     assert legend.wheel and [label for label, _ in legend.notes] == notes
     colors = dict(legend.notes)
     assert colors.get("the leader", LEADER_COLOR) == LEADER_COLOR
-    assert colors.get("dimmed: no update this step", (76, 76, 76)) == (int(255 * ASYNC_DIM),) * 3
+    assert colors.get("dimmed: not updated", (76, 76, 76)) == (int(255 * ASYNC_DIM),) * 3
     sim.close()
 
 

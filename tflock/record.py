@@ -40,7 +40,7 @@ import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -100,6 +100,8 @@ PROFILES = "profiles"
 
 SPAWN_PORT = 9876
 EDGE_COLOR = (200, 200, 200, 110)
+#: the colours view's names of marks drawn in their own colours (notes, the field's levels and headings)
+NAME_COLOR = (200, 200, 200)
 BOUNDS_COLOR = (200, 200, 200)
 #: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
 DRAW_FIELD, DRAW_EDGES, DRAW_TRAILS, DRAW_ARROWS, DRAW_AGENTS, DRAW_MARKERS = -20.0, 0.0, 5.0, 10.0, 20.0, 30.0
@@ -118,6 +120,19 @@ def _label_width(text: str) -> float:
     """The width of a label in legend units (about 7 px a character and 10 px of padding): the viewer centres a
     label on its point, so a label's point goes half its width right of where its text should start."""
     return (7.0 * len(text) + 10.0) / LEGEND_PX
+
+
+def _legend_row(k: float) -> float:
+    """The height of row k of the colours view's columns of dots (the notes, the field's swatches)."""
+    return -0.9 + 0.55 * k
+
+
+def _legend_names(start: float, rows: Iterable[float], labels: list[str], colors: Any) -> rr.Points2D:
+    """Names whose text starts at x = `start`, each level with the dots of its row (:data:`LABEL_RISE`)."""
+    where = [(start + _label_width(label) / 2, y - LABEL_RISE) for label, y in zip(labels, rows, strict=True)]
+    return rr.Points2D(np.array(where, np.float32), radii=0.0, labels=labels, colors=colors, show_labels=True)
+
+
 #: metric rows are handed to Rerun as columns (one call per metric for many rows, where logging each value was one
 #: call each: 35 metrics of a small swarm's run cost about 2 ms a row) once this many rows or seconds have gathered,
 #: and whenever the recording is flushed or closed, so a live viewer lags by at most the seconds
@@ -529,22 +544,15 @@ class Recorder:
                                       radii=rr.Radius.ui_points(6.0))
                 rec.log(f"{LEGEND}/entries", entries, static=True)
                 # each name right of its dot, level with it
-                text = [(-0.55 + _label_width(label) / 2, y - LABEL_RISE) for label, y in zip(labels, where[:, 1],
-                                                                                              strict=True)]
-                rec.log(f"{LEGEND}/entries/names", rr.Points2D(np.array(text, np.float32), radii=0.0, labels=labels,
-                                                               colors=colors, show_labels=True), static=True)
+                rec.log(f"{LEGEND}/entries/names", _legend_names(-0.55, where[:, 1], labels, colors), static=True)
                 x = -0.55 + max(_label_width(label) for label in labels) + 0.6
             if legend.notes:  # right of the wheel or the entries, a dot and its name each, in rows as the field's
                 labels, colors = [label for label, _ in legend.notes], [c for _, c in legend.notes]
-                dot = x - 0.3
-                where = np.array([(dot, -0.9 + 0.55 * k) for k in range(len(labels))], np.float32)
-                rec.log(f"{LEGEND}/notes", rr.Points2D(where, colors=colors, radii=rr.Radius.ui_points(6.0)),
+                dot, rows = x - 0.3, [_legend_row(k) for k in range(len(labels))]
+                rec.log(f"{LEGEND}/notes", rr.Points2D(np.array([(dot, y) for y in rows], np.float32), colors=colors,
+                                                       radii=rr.Radius.ui_points(6.0)), static=True)
+                rec.log(f"{LEGEND}/notes/names", _legend_names(dot + 0.25, rows, labels, [NAME_COLOR] * len(labels)),
                         static=True)
-                text = [(dot + 0.25 + _label_width(label) / 2, y - LABEL_RISE) for label, y in zip(labels, where[:, 1],
-                                                                                                  strict=True)]
-                rec.log(f"{LEGEND}/notes/names", rr.Points2D(np.array(text, np.float32), radii=0.0, labels=labels,
-                                                             colors=[(200, 200, 200)] * len(labels),
-                                                             show_labels=True), static=True)
                 x = dot + 0.25 + max(_label_width(label) for label in labels) + 0.6
         if self.field:
             colors = class_colors()[:, :3]
@@ -552,24 +560,26 @@ class Recorder:
             swatches, swatch_colors = [], []
             for row, (level, ordered) in enumerate([(4, 1), (2, 1), (0, 1), (2, 0)]):
                 for col, h in enumerate(hues):
-                    swatches.append((x + SWATCH_STEP * col, -0.9 + 0.55 * row))
+                    swatches.append((x + SWATCH_STEP * col, _legend_row(row)))
                     swatch_colors.append(colors[class_of(int(h), level, ordered)])
             rec.log(f"{LEGEND}/field", rr.Points2D(np.array(swatches, np.float32), colors=np.array(swatch_colors),
                                                    radii=rr.Radius.ui_points(6.0)), static=True)
             notes = ["dense", "mean density", "sparse", "disordered"]
             # the names start right of the last swatch, level with its row
-            start = x + SWATCH_STEP * (len(hues) - 1) + 0.3
-            where = np.array([[start + _label_width(note) / 2, -0.9 + 0.55 * r - LABEL_RISE]
-                              for r, note in enumerate(notes)], np.float32)
-            rec.log(f"{LEGEND}/field/levels", rr.Points2D(where, radii=0.0, labels=notes, show_labels=True,
-                                                          colors=[(200, 200, 200)] * 4), static=True)
+            start = x + SWATCH_STEP * (len(hues) - 1) + 0.4
+            rec.log(f"{LEGEND}/field/levels", _legend_names(start, [_legend_row(r) for r in range(len(notes))], notes,
+                                                            [NAME_COLOR] * len(notes)), static=True)
+            # an invisible point where the longest name ends: the view fits its points, and a label is centred on
+            # its point, so without it the names' right halves fall outside a wide legend (wheel, notes and field)
+            rec.log(f"{LEGEND}/field/end", rr.Points2D([[start + max(_label_width(n) for n in notes), 0.0]],
+                                                       radii=0.0), static=True)
             # the headings of the swatch columns, named under the last row (hues as on the agents' wheel; the agents
             # themselves may be coloured by something else, as potential's by speed)
             columns = [0, 2, 4, 6]
-            where = np.array([(x + SWATCH_STEP * c, -0.9 + 0.55 * 3 + 10.0 / LEGEND_PX) for c in columns], np.float32)
+            where = np.array([(x + SWATCH_STEP * c, _legend_row(3) + 10.0 / LEGEND_PX) for c in columns], np.float32)
             rec.log(f"{LEGEND}/field/headings", rr.Points2D(where, radii=0.0, show_labels=True,
                                                             labels=[f"{15 * int(hues[c])}°" for c in columns],
-                                                            colors=[(200, 200, 200)] * len(columns)), static=True)
+                                                            colors=[NAME_COLOR] * len(columns)), static=True)
             rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 3.5 * SWATCH_STEP, -1.85]],
                                                          labels="field: heading, density", **title), static=True)
 

@@ -1256,7 +1256,7 @@ class Vicsek(GridModel):
         if self.params.leader.enabled:
             notes.append(("the leader", LEADER_COLOR))
         if self.asynchronous:
-            notes.append(("dimmed: no update this step", tuple(int(ASYNC_DIM * 255) for _ in range(3))))
+            notes.append(("dimmed: not updated", tuple(int(ASYNC_DIM * 255) for _ in range(3))))
         return ColorLegend(HEADING_LEGEND.title, wheel=True, notes=tuple(notes))
 
     def _leader_row(self) -> np.ndarray:
