@@ -740,6 +740,9 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     np.testing.assert_allclose(np.sort(levels[:, 1] + LABEL_RISE), rows, atol=1e-5)
     level_starts = levels[:, 0] - np.array([_label_width(label) for label in level_labels]) / 2
     assert np.all(level_starts > swatches[:, 0].max())
+    # an invisible point where the longest level name ends: the view, which fits its points, keeps the names whole
+    level_ends = levels[:, 0] + np.array([_label_width(label) for label in level_labels]) / 2
+    assert np.array(_last(batches["/legend/field/end"], "Points2D:positions"))[0, 0] >= level_ends.max() - 1e-6
     ends = names[:, 0] + np.array([_label_width(label) for label in labels]) / 2
     assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
     # the notes: each name level with its dot and right of it, all right of the category names
