@@ -800,6 +800,27 @@ def test_plots_paged_in_tabs_of_six(tmp_path: Path) -> None:
     assert all(f"m{k}" in names for k in range(1, PLOTS_PER_TAB + 2)) and "constant: m0" in names
 
 
+def test_constant_plot_is_a_strip_under_the_last_tab(tmp_path: Path) -> None:
+    """The plot of the constant series takes no place in a tab's grid: 12 varying plots and a constant one make two
+    tabs (a third tab held the constant plot alone, and the tab bar scrolled at 1280 px), the constant plot a strip
+    under the second tab's grid, lower than a row of it."""
+    metrics = {f"m{k}": f"metric {k}" for k in range(13)}
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics,
+                  path=tmp_path / "strip.rrd") as rec:
+        for step in range(3):
+            rec.log_metrics(step, {name: float(step * k) for k, name in enumerate(metrics)})
+        assert rec.constant_metrics() == ("m0",)
+        tabs = rec.blueprint(rec.constant_metrics()).root_container.contents[1].contents[:-2]  # about, config last
+    assert [tab.name for tab in tabs] == ["metrics", "metrics 2"]
+    assert type(tabs[0]).__name__ == "Grid" and len(tabs[0].contents) == 6
+    grid, strip = tabs[1].contents
+    assert type(tabs[1]).__name__ == "Vertical" and len(grid.contents) == 6 and strip.name == "constant: m0"
+    shares = tabs[1].row_shares
+    assert shares[1] < shares[0] / 3  # less than one of the grid's 3 rows
+    names = _layout_names(tmp_path / "strip.rrd")
+    assert "metrics 3" not in names and "constant: m0" in names
+
+
 def test_3d_layout_puts_the_field_projections_under_the_world(tmp_path: Path) -> None:
     """3D with the field: the three projections in a row under the 3D view, the colour legend alone above the plots
     (beside three projections it was squeezed to a quarter of the column, its labels over each other)."""
@@ -868,6 +889,21 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     assert legends["gnf_std"]["PlotLegend:visible"] == [True]
     corner = getattr(Corner2D, legend_corner(list(traces.values())))
     assert legends["gnf_std"]["PlotLegend:corner"] == [corner.value]
+
+
+def test_wrapped_angles_plotted_as_points(make_sim, tmp_path: Path) -> None:
+    """Vicsek's mean heading, an angle wrapped into [0, 2 pi), is plotted as points: a line would cross the whole
+    plot each time the flock's heading passes 0; its other metrics keep their lines."""
+    path = tmp_path / "angles.rrd"
+    sim = make_sim(model="vicsek", params={"n": 2000, "box": 32.0}, steps=3, record=path,
+                   log={"max_agents": 100, "max_edges": 10, "field": 0})
+    sim.run()
+    sim.close()
+    batches = _chunks(path)
+    assert _last(batches["/metrics/mean_heading"], "SeriesPoints:names") == ["mean_heading"]
+    assert _last(batches["/metrics/mean_heading"], "SeriesLines:names") is None
+    assert _last(batches["/metrics/polarization"], "SeriesLines:names") == ["polarization"]
+    assert _last(batches["/metrics/polarization"], "SeriesPoints:names") is None
 
 
 def _plot_legends(path: Path) -> dict[str, dict[str, list]]:

@@ -295,6 +295,7 @@ class Recorder:
         world: WorldSpec,
         metrics: Mapping[str, str],
         profiles: Mapping[str, str] | None = None,
+        angles: tuple[str, ...] = (),
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,
@@ -310,7 +311,8 @@ class Recorder:
         segments (``rerun first.rrd resumed.rrd``) as one recording on the same timelines. ``legend``: what the
         agents' colours mean (default: no colour legend); ``field``: frames carry the field of all agents (its
         views and legend are laid out); ``trail``: draw each drawn agent's last `trail` positions; ``drawn``: one
-        line on what is drawn (e.g. "2000 of 100000 agents"), for the about document."""
+        line on what is drawn (e.g. "2000 of 100000 agents"), for the about document; ``angles``: metrics that are
+        angles wrapped into [0, 2 pi), plotted as points (a line would cross the plot where the angle wraps)."""
         for name in metrics:
             if not _METRIC_NAME.match(name):
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
@@ -323,6 +325,7 @@ class Recorder:
         self.world = world
         self.metrics = dict(metrics)
         self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
+        self.angles = tuple(angles)
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
         self.legend = legend
@@ -371,8 +374,8 @@ class Recorder:
     # ------------------------------------------------------------------ layout
     def blueprint(self, constant: tuple[str, ...] = ()) -> rrb.Blueprint:
         """The default layout: the world view largest on the left (in 3D above the field's three projections); on
-        the right the colour legend above tabs of the metric plots (at most :data:`PLOTS_PER_TAB` a tab; the
-        `constant` series in one plot of their own, last), the profiles' bar charts, the about document and the
+        the right the colour legend above tabs of the metric plots (:meth:`_metric_tabs`; the `constant` series
+        in one plot of their own, last), the profiles' bar charts, the about document and the
         config. Side panels collapsed, the time panel a single bar."""
         world = self.world
         if world.dim == 2:
@@ -390,11 +393,7 @@ class Recorder:
             projections = [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
                                              contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
             left = rrb.Vertical(world_view, rrb.Horizontal(*projections), row_shares=[3, 1])
-        plots = self._plots(constant)
-        pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
-        metrics = [rrb.Grid(*page, grid_columns=2 if len(page) > 4 else 1,
-                            name="metrics" if k == 0 else f"metrics {k + 1}") if len(page) > 1 else page[0]
-                   for k, page in enumerate(pages)]
+        metrics = self._metric_tabs(constant)
         profiles = [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
         tabs = [*metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
                 rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")]
@@ -410,6 +409,26 @@ class Recorder:
 
     def _has_legend(self) -> bool:
         return self.legend is not None or self.field
+
+    def _metric_tabs(self, constant: tuple[str, ...]) -> list[rrb.Container | rrb.View]:
+        """The metric plots in tabs of at most :data:`PLOTS_PER_TAB` ("metrics", "metrics 2", ...), in two columns
+        above 4; the plot of the `constant` series takes no place in a tab's grid: it is a strip under the last tab,
+        three quarters of a row high, as a flat line needs little height (Vicsek's 12 plots and its constant one in
+        two tabs, where a third tab held that one plot alone)."""
+        plots = self._plots(constant)
+        strip = plots.pop() if constant and len(plots) > 1 else None
+        pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
+        tabs: list[rrb.Container | rrb.View] = []
+        for k, page in enumerate(pages):
+            name = "metrics" if k == 0 else f"metrics {k + 1}"
+            columns = 2 if len(page) > 4 else 1
+            tab: rrb.Container | rrb.View = rrb.Grid(*page, grid_columns=columns, name=name) if len(page) > 1 \
+                else page[0]
+            if strip is not None and k == len(pages) - 1:
+                rows = -(-len(page) // columns)
+                tab = rrb.Vertical(tab, strip, row_shares=[rows, 0.75], name=name)
+            tabs.append(tab)
+        return tabs
 
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
@@ -489,7 +508,9 @@ class Recorder:
         )
         for members in metric_groups(list(self.metrics)).values():
             for name, short in members:
-                rec.log(f"{METRICS}/{name}", rr.SeriesLines(names=short, widths=1.5), static=True)
+                style = rr.SeriesPoints(names=short, marker_sizes=1.5) if name in self.angles else \
+                    rr.SeriesLines(names=short, widths=1.5)
+                rec.log(f"{METRICS}/{name}", style, static=True)
         if world.dim == 2:  # y up: the 2D view draws y downwards
             rec.log(WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         else:

@@ -46,6 +46,9 @@ class Model(ABC):
                                         "vel": "velocity", "phi": "velocity"}
     #: metric name -> one-line description, in the order the metrics table uses
     metric_descriptions: Mapping[str, str]
+    #: metrics that are angles wrapped into [0, 2 pi): the recording plots them as points (a line would cross the
+    #: plot at each wrap)
+    angle_metrics: tuple[str, ...] = ()
     #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
     profile_descriptions: Mapping[str, str] = {}
     #: what the colours of the drawn agents mean (the recorder draws it beside the world view)

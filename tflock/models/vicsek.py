@@ -832,6 +832,7 @@ class Vicsek(GridModel):
     """
 
     name = "vicsek"
+    angle_metrics = ("mean_heading",)
     #: (step, grid build) whose neighbour sums metrics() already computed for the next step (a tuple, which
     #: checkpoint() leaves out)
     _summed: tuple[int, int] | None = None
