@@ -172,7 +172,7 @@ def block_roots_vectorised(width, label, other, parent: ti.template(), size: ti.
     root in their place. As :func:`block_roots`, with the lanes taken as vectors and bit masks instead of a branch
     and a root walk per lane: the faster form in the Vicsek model's pass, whose labels (grandparents) are nearly
     always roots; `potential`'s pass (labels: parents) timed slower with it and keeps :func:`block_roots`
-    (docs/performance.md)."""
+    (docs/performance-history.md)."""
     lane = ti.Vector([q for q in ti.static(range(LANES))])
     has = (lane < width) & (label != NO_LABEL)
     roots = _roots_of(label, has, parent)
@@ -206,7 +206,7 @@ def settle_block(i0, width, roots, inmask, parent: ti.template(), size: ti.templ
     roots its lanes found (`roots`, -1 for none) into one set, or starts a set rooted at its first lane. Where they
     found different sets, or none, by :func:`_settle_components` or, where `vectorised`,
     :func:`_settle_components_vectorised`: `potential`'s pass is the faster with the second, Vicsek's with the
-    first (docs/performance.md)."""
+    first (docs/performance-history.md)."""
     same = True  # every lane found the same set: it is theirs (the common case inside a flock)
     for q in ti.static(range(1, LANES)):
         if q < width:
@@ -228,7 +228,7 @@ def _block_components(width, inmask, until_stable: ti.template()):
     within R, itself included), by doubling: after round k, every lane within 2^k hops. Where `until_stable`, the
     rounds stop at the first that adds nothing (most blocks: one, when each component's lanes are all within R of
     each other), else all LANE_BITS of them run: the per-lane settle is the faster with the first, the vector
-    settle with the second (docs/performance.md)."""
+    settle with the second (docs/performance-history.md)."""
     comp = inmask & ((1 << width) - 1)
     if ti.static(until_stable):
         growing = True
