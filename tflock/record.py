@@ -16,7 +16,8 @@ default view (docs/recordings.md shows and explains it):
   ``world/field`` (2D), or three projections ``field/xy``, ``field/xz``, ``field/yz`` beside the 3D view;
 * ``legend``: what the colours mean (heading wheel, speed ramp or categories; the field's colours);
 * ``metrics/<name>``: one Scalars series per metric, plotted in groups (per-agent series in one plot, min / mean /
-  max together, energies together; series constant over the run in one plot of their own);
+  max together, energies together; series constant over the run in one plot of their own, a strip under the last
+  metrics tab), as lines, or as points for angles wrapped into [0, 2 pi) (a line would cross the plot at a wrap);
 * ``profiles/<name>``: a BarChart per drawn frame for each 1D profile the model declares (e.g. the density along
   the mean heading, which shows travelling bands), each in a tab of its own;
 * ``about`` (what is drawn, every metric's description), ``config`` (the resolved TOML) and ``meta`` (static);
