@@ -94,11 +94,28 @@ def test_cli_checkpoint_and_resume_continue_the_recording(tmp_path):
     assert len(ids) == 1
 
 
+def test_resume_without_out_writes_the_next_segment_beside_the_first(tmp_path):
+    """Resumed without --out, a run whose checkpoint names its recording (a.rrd) writes the next free segment,
+    a-2.rrd, then a-3.rrd: it was refused before (a.rrd exists), and it never replaces the first segment."""
+    first = tflock("sim", *SMALL, "--steps", "30", "--checkpoint-every", "10", "--out", "a.rrd", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    before = (tmp_path / "a.rrd").read_bytes()
+    for name, steps in (("a-2.rrd", 50), ("a-3.rrd", 40)):
+        resumed = tflock("sim", "--resume", "a.checkpoint.npz", "--steps", str(steps), cwd=tmp_path)
+        assert resumed.returncode == 0, resumed.stderr
+        assert name in resumed.stdout and verify_recording(tmp_path / name)
+        assert read_recording(tmp_path / name).steps == list(range(31, steps + 1))
+        assert (tmp_path / name).with_suffix(".metrics.csv").is_file()
+    assert (tmp_path / "a.rrd").read_bytes() == before
+
+
 @pytest.mark.parametrize("args,key", [
     (["--resume", "missing.npz"], "checkpoint not found"),
     (["--resume", "notes.txt"], "not a tflock checkpoint"),
     (["--resume", "notes.txt", "--model", "vicsek"], "--resume"),
     (["--resume", "notes.txt", "--set", "params.n=5"], "--resume"),
+    (["--resume", "notes.txt", "--set", "params.n=5"], "params.n may not change"),  # the key changed is named
+    (["--resume", "notes.txt", "--seed", "3"], "--resume with --seed"),
     (["--checkpoint-every", "-1"], "--checkpoint-every"),
 ])
 def test_bad_resume_input_is_one_line(tmp_path, args, key):

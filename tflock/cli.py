@@ -121,10 +121,15 @@ def sim(
     if checkpoint_every < 0:
         fail(f"--checkpoint-every: must be >= 0, got {checkpoint_every}")
     if resume is not None:
-        if config is not None or model is not None or seed is not None:
-            fail("--resume: the checkpoint carries the config; only --steps, --threads and --set log.* may change")
-        if any(not (o.startswith(("log.", "steps=", "engine.threads="))) for o in overrides):
-            fail("--resume: only --steps, --threads and --set log.* may change a resumed run")
+        given = [name for name, value in (("--config", config), ("--model", model), ("--seed", seed))
+                 if value is not None]
+        if given:
+            fail(f"--resume with {given[0]}: the checkpoint carries the config; only --steps, --threads and --set "
+                 f"log.* may change")
+        changed = [o.split("=", 1)[0] for o in overrides if not o.startswith(("log.", "steps=", "engine.threads="))]
+        if changed:
+            fail(f"--resume: {changed[0]} may not change: a resumed run continues its checkpoint's config; only "
+                 f"--steps, --threads and --set log.* may change")
     try:
         if resume is not None:
             from tflock.simulation import read_checkpoint

@@ -183,8 +183,8 @@ class Simulation:
             config = tomllib.loads(str(saved["config_toml"]))
         if isinstance(config, Config) and (overrides or fields or model):
             config = config_to_dict(config)
+        merged: dict[str, Any] = {}  # the keys given with the config, overrides and fields
         if not isinstance(config, Config):
-            merged: dict[str, Any] = {}
             if isinstance(overrides, Mapping):
                 merged.update(overrides)
             elif overrides is not None:
@@ -196,6 +196,8 @@ class Simulation:
         self.config: Config = config
         record_path = None if not record else Path(record) if not isinstance(record, bool) else (
             Path(config.log.out) if config.log.out else None)
+        # a resumed run recording to its checkpoint's path (none given anew) writes the next segment beside it
+        next_segment = resume is not None and record is True and record_path is not None and "log.out" not in merged
         check_memory(config)
         if connect:
             check_viewer(connect)
@@ -205,7 +207,7 @@ class Simulation:
         try:
             record_path, checkpoint = self._claim_outputs(
                 record_path, bool(record) and record_path is None, None if checkpoint is None else Path(checkpoint),
-                checkpoint_every, None if resume is None else Path(resume), overwrite)
+                checkpoint_every, None if resume is None else Path(resume), overwrite, next_segment)
             self._start(saved, record_path, spawn, connect, checkpoint, checkpoint_every)
         except BaseException:
             self.close()
@@ -214,23 +216,26 @@ class Simulation:
                       recording=record_path, drawn=len(self._selected), field=self._field_size)
 
     def _claim_outputs(self, record_path: Path | None, default_name: bool, checkpoint: Path | None,
-                       checkpoint_every: int, resume: Path | None, overwrite: bool) -> tuple[Path | None, Path | None]:
+                       checkpoint_every: int, resume: Path | None, overwrite: bool,
+                       next_segment: bool = False) -> tuple[Path | None, Path | None]:
         """Check, lock and return the run's recording and checkpoint paths (:mod:`tflock.outputs`): a recording
-        named by tflock (`default_name`) takes the first free ``recordings/<model>-<time>[-k].rrd``; a checkpoint
-        every k steps without a path goes beside the recording (``.checkpoint.npz``)."""
+        named by tflock (`default_name`) takes the first free ``recordings/<model>-<time>[-k].rrd``, a resumed run's
+        `next_segment` the first free ``<name>-k.rrd`` after its checkpoint's recording ``<name>.rrd`` (which it
+        never replaces); a checkpoint every k steps without a path goes beside the recording (``.checkpoint.npz``)."""
         if checkpoint is not None:
             claim(checkpoint, "checkpoint", overwrite=overwrite, allowed=resume, into=self._outputs)
 
-        def attempt(recording: Path | None, base: Path | None) -> tuple[Path | None, Path | None]:
+        def attempt(recording: Path | None, base: Path | None, replace: bool = overwrite
+                    ) -> tuple[Path | None, Path | None]:
             taken = Outputs()
             try:
                 beside = None
                 if checkpoint is None and checkpoint_every and base is not None:
                     beside = base.with_suffix(".checkpoint.npz")
-                    claim(beside, "checkpoint", overwrite=overwrite, allowed=resume, into=taken)
+                    claim(beside, "checkpoint", overwrite=replace, allowed=resume, into=taken)
                 if recording is not None:
                     claim(recording, "recording", [(recording.with_suffix(".metrics.csv"), "metrics table")],
-                          overwrite=overwrite, into=taken)
+                          overwrite=replace, into=taken)
             except BaseException:
                 taken.release()
                 raise
@@ -241,6 +246,8 @@ class Simulation:
         if default_name or (record_path is None and checkpoint is None and checkpoint_every):
             return first_free(default_recording_path(self.config.model),
                               lambda base: attempt(base if default_name else None, base))
+        if next_segment:
+            return first_free(record_path, lambda base: attempt(base, base, replace=False))
         return attempt(record_path, record_path)
 
     def _start(self, saved: Mapping[str, Any] | None, record_path: Path | None, spawn: bool, connect: str | None,
