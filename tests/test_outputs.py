@@ -81,14 +81,18 @@ def test_an_earlier_runs_files_are_refused_unless_overwrite(cpu_engine: Any, tmp
 
 def test_out_is_the_saved_configs_log_out(cpu_engine: Any, tmp_path: Path) -> None:
     """--out is a shortcut for log.out: the config a checkpoint keeps says where the recording went, so a resumed
-    run without --out would write there (refused: it exists) and not under a default name."""
+    run without --out writes beside it, the next segment runs/a-2.rrd (it was refused before c4fd637: runs/a.rrd
+    exists), not under a default name, and leaves the first segment as it was."""
     assert sim(tmp_path, "--steps", "2", "--out", "runs/a.rrd", "--checkpoint-every", "2").exit_code == 0
     saved = simulation.read_checkpoint(tmp_path / "runs" / "a.checkpoint.npz", arrays=False)
     assert tomllib.loads(str(saved["config_toml"]))["log"]["out"] == "runs/a.rrd"
-    assert_one_error_line(invoke_in(tmp_path, ["sim", "--resume", "runs/a.checkpoint.npz", "--steps", "4"]),
-                          "runs/a.rrd exists")
+    first = (tmp_path / "runs" / "a.rrd").read_bytes()
+    resumed = invoke_in(tmp_path, ["sim", "--resume", "runs/a.checkpoint.npz", "--steps", "4"])
+    assert resumed.exit_code == 0 and "runs/a-2.rrd" in resumed.stdout
     assert names(tmp_path) == ["runs"]
-    assert names(tmp_path / "runs") == ["a.checkpoint.npz", "a.metrics.csv", "a.rrd"]
+    assert names(tmp_path / "runs") == ["a-2.metrics.csv", "a-2.rrd", "a.checkpoint.npz", "a.metrics.csv", "a.rrd"]
+    assert (tmp_path / "runs" / "a.rrd").read_bytes() == first
+    assert read_recording(tmp_path / "runs" / "a-2.rrd").steps == [3, 4]
 
 
 def test_a_resumed_run_may_keep_writing_its_own_checkpoint(cpu_engine: Any, tmp_path: Path) -> None:
