@@ -906,6 +906,24 @@ def test_wrapped_angles_plotted_as_points(make_sim, tmp_path: Path) -> None:
     assert _last(batches["/metrics/polarization"], "SeriesPoints:names") is None
 
 
+@pytest.mark.parametrize("topology,edges", [
+    ("fixed", "edges of the fixed interaction graph among the drawn agents"),
+    ("switching", "pairs within the interaction radius among the drawn agents"),
+])
+def test_about_says_what_the_edges_join(make_sim, tmp_path: Path, topology: str, edges: str) -> None:
+    """The about text names the edges drawn: a fixed-topology potential run draws its fixed graph's edges, longer
+    than R too, where the about text said "pairs within the interaction radius" for every model."""
+    path = tmp_path / f"{topology}.rrd"
+    params = {"n": 30, "box": 6.0, "topology": topology}
+    if topology == "fixed":
+        params.update(graph="random", graph_p=0.2)
+    sim = make_sim(model="potential", params=params, steps=2, record=path)
+    sim.run()
+    sim.close()
+    (about,) = _last(_chunks(path)["/about"], "TextDocument:text")
+    assert f"- **edges**: {edges} (" in about
+
+
 def _plot_legends(path: Path) -> dict[str, dict[str, list]]:
     """The plots of the last layout in a recording: view name -> its PlotLegend components."""
     from rerun.chunk import RrdReader

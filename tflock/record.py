@@ -297,6 +297,7 @@ class Recorder:
         metrics: Mapping[str, str],
         profiles: Mapping[str, str] | None = None,
         angles: tuple[str, ...] = (),
+        edges: str = "pairs within the interaction radius among the drawn agents",
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,
@@ -313,7 +314,8 @@ class Recorder:
         agents' colours mean (default: no colour legend); ``field``: frames carry the field of all agents (its
         views and legend are laid out); ``trail``: draw each drawn agent's last `trail` positions; ``drawn``: one
         line on what is drawn (e.g. "2000 of 100000 agents"), for the about document; ``angles``: metrics that are
-        angles wrapped into [0, 2 pi), plotted as points (a line would cross the plot where the angle wraps)."""
+        angles wrapped into [0, 2 pi), plotted as points (a line would cross the plot where the angle wraps);
+        ``edges``: what the frames' edges join, for the about document."""
         for name in metrics:
             if not _METRIC_NAME.match(name):
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
@@ -327,6 +329,7 @@ class Recorder:
         self.metrics = dict(metrics)
         self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
         self.angles = tuple(angles)
+        self.edges = edges
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
         self.legend = legend
@@ -462,8 +465,8 @@ class Recorder:
         lines.append("")
         lines.append("- **arrows**: each agent's velocity over the step just made, relative to the model's reference "
                      "speed (a full-speed agent's arrow has the same length in every frame).")
-        lines.append("- **edges**: pairs within the interaction radius among the drawn agents (the graph induced on "
-                     "the first drawn agents, as many as the edge cap allows).")
+        lines.append(f"- **edges**: {self.edges} (the graph induced on the first drawn agents, as many as the edge "
+                     "cap allows).")
         if self.field:
             where = "under the agents" if world.dim == 2 else "in the three projection views"
             lines.append(f"- **field** ({where}): all agents binned into pixels; hue = the pixel's mean heading, "

@@ -49,6 +49,8 @@ class Model(ABC):
     #: metrics that are angles wrapped into [0, 2 pi): the recording plots them as points (a line would cross the
     #: plot at each wrap)
     angle_metrics: tuple[str, ...] = ()
+    #: what a frame's edges join, for the recording's about text
+    edges_description: str = "pairs within the interaction radius among the drawn agents"
     #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
     profile_descriptions: Mapping[str, str] = {}
     #: what the colours of the drawn agents mean (the recorder draws it beside the world view)

@@ -870,6 +870,8 @@ class Potential(GridModel):
         self.dt = params.dt
         self.dim = dim
         self.switching = params.topology == "switching"
+        if not self.switching:  # the frames draw the fixed graph's edges, whatever their length (_fixed_edges)
+            self.edges_description = "edges of the fixed interaction graph among the drawn agents"
         ftype = ti.f32 if real == np.float32 else ti.f64
         self.pos = ti.ndarray(ftype, (dim, n))  # component-major, as every kernel array
         self.vel = ti.ndarray(ftype, (dim, n))
