@@ -69,8 +69,8 @@ class FormationParams(BaseModel):
     va_heading_deg: Float = Field(180.0, description="fixed heading of the VA, degrees")
     ramp_jitter: Float = Field(
         1.0, ge=0, le=1,
-        description="gamma / T of the speed ramps, in [0, 1]: a ramp lasts dt_i = T + rnd, rnd ~ U(-gamma, gamma), "
-                    "T = 2 vair / (out_speed - va_speed) (eqs. 1-2; the paper uses gamma ~ T)",
+        description="gamma / T of the speed ramps, in [0, 1]: a ramp lasts dt_i = max(1, T + rnd), "
+                    "rnd ~ U(-gamma, gamma), T = 2 vair / (out_speed - va_speed) (eqs. 1-2; the paper uses gamma ~ T)",
     )
     fail_prob: Float = Field(
         0.0, ge=0, le=1, description="communication failure p in [0, 1]: an agent ignores all stimuli for one step",
