@@ -258,3 +258,20 @@ def test_a_case_that_fails_is_named_in_the_results(tmp_path, monkeypatch):
     assert [(s["case"]["model"], s["case"]["n"], s["error"]) for s in data["skipped"]] == [("formation", 300, error)]
     with open(tmp_path / "run.csv") as f:
         assert [row["model"] for row in csv.DictReader(f)] == ["vicsek"]
+
+
+def test_engine_labels_tell_apart_the_rows_of_several_engines() -> None:
+    """`tflock bench --threads 1,2` printed two rows and drew one line with nothing to tell the thread counts
+    apart: the table gets an engine column and the plot's legend a label, each the part of the engine that
+    differs; none for one engine."""
+    from types import SimpleNamespace
+
+    from tflock.bench import engine_labels
+
+    one, two = "cpu, 1 threads, f32, 8 lanes", "cpu, 2 threads, f32, 8 lanes"
+    rows = [SimpleNamespace(engine=e) for e in (one, two, one)]
+    assert engine_labels(rows) == {one: "1 threads", two: "2 threads"}
+    assert engine_labels([SimpleNamespace(engine=one)] * 3) == {}
+    f64 = "cpu, 2 threads, f64, 8 lanes"
+    assert engine_labels([SimpleNamespace(engine=e) for e in (one, f64)]) == {one: "1 threads, f32",
+                                                                                f64: "2 threads, f64"}

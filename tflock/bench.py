@@ -498,6 +498,18 @@ def write_results(results: list[BenchResult], out: Path, command: str,
     return written
 
 
+def engine_labels(results: list[BenchResult]) -> dict[str, str]:
+    """Each result's engine line (``cpu, 2 threads, f32, 8 lanes``) shortened to the parts in which the results'
+    engines differ (``2 threads``), to tell apart the rows and lines of a run over several (``--threads 1,2``);
+    empty where all ran on one engine."""
+    engines = sorted({r.engine for r in results})
+    if len(engines) < 2:
+        return {}
+    parts = [engine.split(", ") for engine in engines]
+    differ = [k for k in range(max(map(len, parts))) if len({p[k] if k < len(p) else "" for p in parts}) > 1]
+    return {engine: ", ".join(p[k] for k in differ if k < len(p)) for engine, p in zip(engines, parts, strict=True)}
+
+
 def plot(results: list[BenchResult], path: Path) -> Path | None:
     """agent-steps/s and ms/step against N, log-log, one line per (model, state), with a run's ms/step (and a
     logged run's) beside the step's and the peers'; None without matplotlib."""
@@ -509,15 +521,18 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
     except ImportError:
         return None
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 6))
-    groups: dict[tuple[str, str, bool], list[BenchResult]] = {}
-    for r in results:
-        groups.setdefault((r.case.model, r.case.state, r.case.log), []).append(r)
+    labels = engine_labels(results)
+    groups: dict[tuple[str, str, bool, str], list[BenchResult]] = {}
+    for r in results:  # one line per engine too where several ran (e.g. --threads 1,2)
+        groups.setdefault((r.case.model, r.case.state, r.case.log, r.engine), []).append(r)
     styles = {"numpy_reference": ":", "ckdtree_sparse": "--", "numba_cells": "-."}
-    for index, ((model, state, log), rs) in enumerate(groups.items()):
+    for index, ((model, state, log, engine), rs) in enumerate(groups.items()):
         color = f"C{index % 10}"
         rs.sort(key=lambda r: r.case.n)
         n = [r.case.n for r in rs]
         nb = ", ".join(f"{r.mean_neighbors:.0f}" for r in rs)
+        if labels:
+            state = f"{state} [{labels[engine]}]"
         label = f"{model} {state}{' +log' if log else ''}: step (neighbours {nb})"
         left.loglog(n, [r.agent_steps_per_s for r in rs], "o-", color=color, label=label)
         right.loglog(n, [r.ms_median for r in rs], "o-", color=color, label=label)
@@ -537,7 +552,7 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
         ax.grid(True, which="both", alpha=0.3)
     for ax in (left, right):  # below the axes: the right one's entries would cover its lines
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
-    engine = results[0].engine if results else ""
+    engine = results[0].engine if results and not labels else "engines in the legend"
     overrides = sorted({o for r in results for o in r.case.overrides})
     config = f"default config with {', '.join(overrides)}" if overrides else "default config"
     fig.suptitle(f"tflock bench ({engine}; workload: {config}, density kept; neighbours per agent in the legend)",

@@ -446,7 +446,16 @@ def bench(
         "Metrics cadence of the timed runs (run ms/step), >= 1; 0 = the model's default."))] = 0,
 ) -> None:
     """Scaling benchmark: ms/step, agent-steps/s, breakdown, memory and peers, written under results/bench/."""
-    from tflock.bench import STATES, BenchCase, CaseEngineError, cases, default_out, run_in_subprocess, write_results
+    from tflock.bench import (
+        STATES,
+        BenchCase,
+        CaseEngineError,
+        cases,
+        default_out,
+        engine_labels,
+        run_in_subprocess,
+        write_results,
+    )
 
     names = [m for m in models_.split(",") if m] or list(MODEL_DESCRIPTIONS)
     for name in names:
@@ -492,8 +501,10 @@ def bench(
     table = Table(title="tflock bench (ms per step: median (min-max); run: as tflock sim runs it, with metrics and "
                   "guard, against the plain step; logged run: a frame every step too, against the run; "
                   "workload = mean neighbours per agent)")
-    for column in ("model", "N", "state", "neighbours", "ms/step", "run ms/step", "logged run", "agent-steps/s",
-                   "build", "interact", "metrics", "log", "first step", "B/agent", "peers (x tflock time)"):
+    engines = engine_labels(results)  # e.g. --threads 1,2: a column tells the rows apart
+    for column in ("model", "N", "state", *(("engine",) if engines else ()), "neighbours", "ms/step", "run ms/step",
+                   "logged run", "agent-steps/s", "build", "interact", "metrics", "log", "first step", "B/agent",
+                   "peers (x tflock time)"):
         table.add_column(column, justify="right")
     for r in results:
         c = r.case
@@ -501,7 +512,8 @@ def bench(
         peer_text = ", ".join(f"{k} {v['ratio']:.1f}x" for k, v in r.peers.items()) or "-"
         logged = "-" if r.logged_ms_median is None else (
             f"{r.logged_ms_median:.2f} ({r.logged_ms_min:.2f}-{r.logged_ms_max:.2f}, {r.logging_overhead:+.0%})")
-        table.add_row(c.model, f"{c.n:,}", c.state, f"{r.mean_neighbors:.1f}",
+        table.add_row(c.model, f"{c.n:,}", c.state, *((engines[r.engine],) if engines else ()),
+                      f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
                       f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {r.run_overhead:+.0%})",
                       logged, f"{r.agent_steps_per_s:.3g}",
