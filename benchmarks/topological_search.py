@@ -36,7 +36,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--n", type=float, default=1e6)
     parser.add_argument("--rounds", type=int, default=7)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/topological-search-ab.json"))
+    parser.add_argument("--out", type=Path, default=Path("results/topological-search-ab.json"))
     args = parser.parse_args()
     engine = init_engine("cpu")
     from tflock.neighbors import CellGrid
