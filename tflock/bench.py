@@ -511,8 +511,9 @@ def engine_labels(results: list[BenchResult]) -> dict[str, str]:
 
 
 def plot(results: list[BenchResult], path: Path) -> Path | None:
-    """agent-steps/s and ms/step against N, log-log, one line per (model, state), with a run's ms/step (and a
-    logged run's) beside the step's and the peers'; None without matplotlib."""
+    """agent-steps/s and ms/step against N, log-log, one line per (model, state; engine where several ran: see
+    :func:`engine_labels`), with a run's ms/step (and a logged run's) beside the step's and the peers'; None without
+    matplotlib."""
     try:
         import matplotlib
 
