@@ -532,21 +532,20 @@ def plot(results: list[BenchResult], path: Path) -> Path | None:
         rs.sort(key=lambda r: r.case.n)
         n = [r.case.n for r in rs]
         nb = ", ".join(f"{r.mean_neighbors:.0f}" for r in rs)
-        if labels:
-            state = f"{state} [{labels[engine]}]"
-        label = f"{model} {state}{' +log' if log else ''}: step (neighbours {nb})"
+        series = f"{model} {state}" + (f" [{labels[engine]}]" if labels else "")
+        label = f"{series}{' +log' if log else ''}: step (neighbours {nb})"
         left.loglog(n, [r.agent_steps_per_s for r in rs], "o-", color=color, label=label)
         right.loglog(n, [r.ms_median for r in rs], "o-", color=color, label=label)
         right.loglog(n, [r.run_ms_median for r in rs], "s", linestyle=(0, (6, 2)), color=color,
-                     label=f"{model} {state}: run (metrics, guard)")
+                     label=f"{series}: run (metrics, guard)")
         logged = [r for r in rs if r.logged_ms_median is not None]
         if logged:
             right.loglog([r.case.n for r in logged], [r.logged_ms_median for r in logged], "^", linestyle=(0, (2, 2)),
-                         color=color, label=f"{model} {state}: logged run")
+                         color=color, label=f"{series}: logged run")
         for name in sorted({p for r in rs for p in r.peers}):
             with_peer = [r for r in rs if name in r.peers]
             right.loglog([r.case.n for r in with_peer], [r.peers[name]["ms"] for r in with_peer], "x",
-                         linestyle=styles.get(name, "-."), color=color, label=f"{model} {state}: {name}")
+                         linestyle=styles.get(name, "-."), color=color, label=f"{series}: {name}")
     left.set(xlabel="N agents", ylabel="agent-steps / s", title="throughput")
     right.set(xlabel="N agents", ylabel="ms / step (median)", title="step time, and a run's")
     for ax in (left, right):

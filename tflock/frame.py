@@ -66,6 +66,9 @@ class ColorLegend:
 #: the leader's colour in the world view (Vicsek's leader following)
 LEADER_COLOR = (255, 255, 255)
 
+#: what a frame's edges join, unless the model says otherwise (the recording's about text)
+RADIUS_EDGES = "pairs within the interaction radius among the drawn agents"
+
 #: the legend of agents coloured by the hue of their heading (Vicsek, adaptive)
 HEADING_LEGEND = ColorLegend("agents: heading", wheel=True)
 

@@ -57,6 +57,7 @@ from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_
 from tflock.frame import (
     BOUNDARIES,
     LEADER_COLOR,
+    RADIUS_EDGES,
     ColorLegend,
     Frame,
     Marker,
@@ -297,7 +298,7 @@ class Recorder:
         metrics: Mapping[str, str],
         profiles: Mapping[str, str] | None = None,
         angles: tuple[str, ...] = (),
-        edges: str = "pairs within the interaction radius among the drawn agents",
+        edges: str = RADIUS_EDGES,
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,

@@ -9,7 +9,7 @@ import taichi as ti
 
 from tflock.engine import EngineInfo
 from tflock.field import Field, FieldImage
-from tflock.frame import HEADING_LEGEND, ColorLegend, Frame, WorldSpec
+from tflock.frame import HEADING_LEGEND, RADIUS_EDGES, ColorLegend, Frame, WorldSpec
 from tflock.guard import Guarded, first_non_finite
 from tflock.neighbors import DrawnEdges, SubsetDrawing
 
@@ -50,7 +50,7 @@ class Model(ABC):
     #: plot at each wrap)
     angle_metrics: tuple[str, ...] = ()
     #: what a frame's edges join, for the recording's about text
-    edges_description: str = "pairs within the interaction radius among the drawn agents"
+    edges_description: str = RADIUS_EDGES
     #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
     profile_descriptions: Mapping[str, str] = {}
     #: what the colours of the drawn agents mean (the recorder draws it beside the world view)
