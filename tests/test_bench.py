@@ -268,10 +268,10 @@ def test_engine_labels_tell_apart_the_rows_of_several_engines() -> None:
 
     from tflock.bench import engine_labels
 
-    one, two = "cpu, 1 threads, f32, 8 lanes", "cpu, 2 threads, f32, 8 lanes"
+    one, two = "cpu, 1 thread, f32, 8 lanes", "cpu, 2 threads, f32, 8 lanes"
     rows = [SimpleNamespace(engine=e) for e in (one, two, one)]
-    assert engine_labels(rows) == {one: "1 threads", two: "2 threads"}
+    assert engine_labels(rows) == {one: "1 thread", two: "2 threads"}
     assert engine_labels([SimpleNamespace(engine=one)] * 3) == {}
     f64 = "cpu, 2 threads, f64, 8 lanes"
-    assert engine_labels([SimpleNamespace(engine=e) for e in (one, f64)]) == {one: "1 threads, f32",
+    assert engine_labels([SimpleNamespace(engine=e) for e in (one, f64)]) == {one: "1 thread, f32",
                                                                                 f64: "2 threads, f64"}

@@ -48,6 +48,7 @@ def test_tflock_lanes_chooses(monkeypatch: pytest.MonkeyPatch, value: str, lanes
 
 def test_describe_names_the_lanes_on_the_cpu_only() -> None:
     assert EngineInfo("cpu", "auto", 2, "f32", 16).describe() == "cpu, 2 threads, f32, 16 lanes"
+    assert EngineInfo("cpu", "auto", 1, "f32", 16).describe() == "cpu, 1 thread, f32, 16 lanes"
     assert EngineInfo("cuda", "cuda", 0, "f64", 8).describe() == "cuda, f64"
 
 

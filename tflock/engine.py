@@ -66,7 +66,8 @@ class EngineInfo:
         """One line for summaries and benchmark tables, e.g. ``cpu, 2 threads, f32, 16 lanes``."""
         if self.arch != "cpu":
             return f"{self.arch}, {self.precision}"
-        return f"{self.arch}, {self.threads} threads, {self.precision}, {self.lanes} lanes"
+        threads = f"{self.threads} thread" + ("s" if self.threads != 1 else "")
+        return f"{self.arch}, {threads}, {self.precision}, {self.lanes} lanes"
 
     @property
     def real(self) -> type:
