@@ -90,3 +90,18 @@ def test_series_are_thinned_evenly_over_the_run() -> None:
     clusters_steps, _ = rows.series("clusters")
     assert len(clusters_steps) > TRACE_POINTS // 4 and all(clusters_steps.astype(int) % 3)  # only where logged
     assert len(rows.series("lambda2")[0]) == 0
+
+
+def test_extent_is_exact_over_every_row() -> None:
+    """Each metric's smallest and largest finite value over every row logged, rows thinned out of the trace
+    included; left-out and non-finite values do not count; None before any finite value."""
+    rows = MetricRows(["a", "b", "c"])
+    assert rows.extent("a") is None
+    for step in range(3 * TRACE_POINTS):
+        a = 5.0 if step == 3 * TRACE_POINTS - 1 else float(step % 3)  # the last row's a: thinned out of the trace
+        row, present = rows.row({"a": a, "b": math.inf if step == 7 else -1.0})
+        rows.add(step, row, present)
+    assert rows.series("a")[1].max() == 2.0
+    assert rows.extent("a") == (0.0, 5.0)
+    assert rows.extent("b") == (-1.0, -1.0)
+    assert rows.extent("c") is None

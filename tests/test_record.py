@@ -887,8 +887,51 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     legends = _plot_legends(path)
     assert "gnf_std" in legends and not any("agent" in name for name in legends)
     assert legends["gnf_std"]["PlotLegend:visible"] == [True]
-    corner = getattr(Corner2D, legend_corner(list(traces.values())))
+    corner = getattr(Corner2D, legend_corner(list(traces.values()), recorder._y_range(list(traces))))
     assert legends["gnf_std"]["PlotLegend:corner"] == [corner.value]
+
+
+def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> None:
+    """Rerun labels only decade marks, and none that are too close: values spanning more than DENSE_MARKS marks of
+    their decade get the two marks of the decade above around them (with a margin, as a mark on the edge is not
+    labelled), where they lie between two such marks; the others keep the viewer's fit."""
+    from tflock.record import LABEL_MARGIN, labelled_range
+
+    def fixed(low: float, high: float) -> tuple[float, float] | None:
+        out = labelled_range(low, high)
+        return None if out is None else (round(out[0], 12), round(out[1], 12))
+
+    m = LABEL_MARGIN
+    assert fixed(0.003, 0.068) == (round(-0.1 * m, 12), round(0.1 * (1 + m), 12))  # polarization, default run
+    assert fixed(-0.068, -0.003) == (round(-0.1 * (1 + m), 12), round(0.1 * m, 12))
+    assert fixed(0.02, 1.0) == (-m, 1 + m)  # the top on the mark itself
+    assert fixed(4.0, 690.0) == (-1000 * m, 1000 * (1 + m))
+    assert fixed(83.0, 85.6) is None  # 2.6 marks of 1: labelled as fitted
+    assert fixed(950.0, 1400.0) is None  # 4.5 marks of 100 around the labelled 1000
+    assert fixed(0.5, 0.5) is None and fixed(0.0, math.inf) is None and fixed(0.0, math.nan) is None
+
+
+def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None:
+    """The layout sent at the end fixes the y range of a plot whose values span too many marks to be labelled
+    (:func:`labelled_range`), from the smallest and largest of all the rows logged, not only of those kept for
+    placing legends (a spike in a dropped row changes it); a plot labelled as fitted keeps the fit."""
+    from tflock.metric_log import TRACE_POINTS
+    from tflock.record import labelled_range
+
+    def record(spike: float) -> dict[str, dict[str, list]]:
+        path = tmp_path / f"dense-{spike}.rrd"
+        with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS,
+                      path=path) as rec:
+            for step in range(2 * TRACE_POINTS + 2):
+                order = spike if step == 2 * TRACE_POINTS + 1 else 0.003 + 0.047 * (step % 7) / 6
+                rec.log_metrics(step, {"order": order, "speed": 83.0 + 2.6 * (step % 5) / 4})
+            assert rec._rows.series("order")[1].max() < spike  # the spike's row is not among those kept
+        return _plot_legends(path, "ScalarAxis")
+
+    axes = record(0.06)
+    assert axes["order"]["ScalarAxis:range"] == [list(labelled_range(0.003, 0.06))]
+    assert "speed" not in axes
+    assert "order" not in record(0.15)  # 0.003 to 0.15: 1.5 marks of 0.1, labelled as fitted
 
 
 def test_wrapped_angles_plotted_as_points(make_sim, tmp_path: Path) -> None:
@@ -924,8 +967,9 @@ def test_about_says_what_the_edges_join(make_sim, tmp_path: Path, topology: str,
     assert f"- **edges**: {edges} (" in about
 
 
-def _plot_legends(path: Path) -> dict[str, dict[str, list]]:
-    """The plots of the last layout in a recording: view name -> its PlotLegend components."""
+def _plot_legends(path: Path, archetype: str = "PlotLegend") -> dict[str, dict[str, list]]:
+    """The plots of the last layout in a recording: view name -> its components of `archetype` (PlotLegend,
+    ScalarAxis)."""
     from rerun.chunk import RrdReader
 
     reader = RrdReader(path)
@@ -939,6 +983,6 @@ def _plot_legends(path: Path) -> dict[str, dict[str, list]]:
             for key, value in row.items():
                 if key.endswith(":display_name"):
                     names[chunk.entity_path] = value[0]
-                elif key.startswith("PlotLegend:"):
+                elif key.startswith(f"{archetype}:"):
                     legends.setdefault(chunk.entity_path.rsplit("/", 1)[0], {})[key] = value
     return {names[view]: legend for view, legend in legends.items()}

@@ -34,6 +34,8 @@ class MetricRows:
         self._first = np.full(width, np.nan)  # each metric's first value after step 0
         self._has_first = np.zeros(width, dtype=bool)
         self._changed = np.zeros(width, dtype=bool)
+        self._low = np.full(width, np.inf)  # each metric's smallest and largest finite value so far
+        self._high = np.full(width, -np.inf)
 
     def row(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray | None]:
         """`values` as a vector in the order of `names` (NaN where left out) and which are present (None: all).
@@ -66,6 +68,9 @@ class MetricRows:
                     del kept[1::2]
                 self._stride *= 2
         self._seen += 1
+        finite = np.isfinite(row)  # (a left-out metric is NaN)
+        np.minimum(self._low, row, out=self._low, where=finite)
+        np.maximum(self._high, row, out=self._high, where=finite)
         if step > 0:  # step 0 is the state before any step was made
             every = True if present is None else present
             new = every & ~self._has_first
@@ -106,6 +111,11 @@ class MetricRows:
         steps = np.asarray(self._trace_steps, dtype=np.float64)[present]
         values = np.array([v[j] for v in self._trace_values], dtype=np.float64)[present]
         return steps, values
+
+    def extent(self, name: str) -> tuple[float, float] | None:
+        """The smallest and largest finite value of one metric over every row so far (None: none yet)."""
+        j = self.index[name]
+        return (float(self._low[j]), float(self._high[j])) if self._low[j] <= self._high[j] else None
 
     def constant(self) -> tuple[str, ...]:
         """The metrics logged with one value at every step after step 0 so far (none before a row after step 0)."""

@@ -226,11 +226,11 @@ SWATCH_STEP = 0.45
 PLOTS_PER_TAB = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
-def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
+def legend_corner(series: list[tuple[list[int], list[float]]], y_range: tuple[float, float] | None = None) -> str:
     """The corner of a plot (one of :data:`LEGEND_CORNERS`) where its legend covers the fewest of the series'
     points (steps, values). The legend of k series is taken to cover the outer 0.4 of the plot's width and
     min(0.9, 0.25 k) of its height (a line of about 22 px a series, on a plot about 100 px high), the plot
-    spanning the points' steps and finite values as the viewer fits them."""
+    spanning the points' steps and finite values as the viewer fits them, or `y_range` where the plot fixes it."""
     steps = np.concatenate([np.asarray(s, np.float64) for s, _ in series]) if series else np.zeros(0)
     values = np.concatenate([np.asarray(v, np.float64) for _, v in series]) if series else np.zeros(0)
     keep = np.isfinite(values)
@@ -238,7 +238,8 @@ def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
     if steps.size == 0:
         return LEGEND_CORNERS[0]
     x = (steps - steps.min()) / max(np.ptp(steps), 1e-300)
-    y = (values - values.min()) / np.ptp(values) if np.ptp(values) > 0 else np.full(values.shape, 0.5)
+    low, high = y_range if y_range is not None else (values.min(), values.max())
+    y = (values - low) / (high - low) if high > low else np.full(values.shape, 0.5)
     width, height = 0.4, min(0.9, 0.25 * len(series))
     covered = {
         "RightTop": np.count_nonzero((x > 1 - width) & (y > 1 - height)),
@@ -247,6 +248,35 @@ def legend_corner(series: list[tuple[list[int], list[float]]]) -> str:
         "LeftTop": np.count_nonzero((x < width) & (y > 1 - height)),
     }
     return min(LEGEND_CORNERS, key=lambda corner: covered[corner])  # min keeps the first of equals
+
+
+#: decade marks across a plot's values above which Rerun labels none of them on a plot of the default layout at
+#: 1280 x 800 (about 130 px high: a plot labels only decades, ... 0.01, 0.1, 1, 10 ..., and only marks about 25 px
+#: apart or more): polarization in [0.003, 0.068] (6.5 marks of 0.01) had no labels
+DENSE_MARKS = 4
+#: the margin, a fraction of the range, that :func:`labelled_range` leaves beyond its two labelled marks
+LABEL_MARGIN = 0.08
+
+
+def labelled_range(low: float, high: float) -> tuple[float, float] | None:
+    """A fixed y range for a plot of values in [low, high] that would otherwise have no labels on its axis: where
+    the values span more than :data:`DENSE_MARKS` marks of their decade (marks too close to be labelled) and lie
+    between two neighbouring marks of the decade above (the next labelled ones), those two: the values then fill at
+    least 0.4 of the plot, between two labelled marks. Else None: the viewer's own fit, which labels the
+    marks of the values' decade, or one mark of the decade above inside the values."""
+    span = high - low
+    if not (math.isfinite(span) and span > 0):
+        return None
+    decade = 10.0 ** math.floor(math.log10(span))
+    if span / decade <= DENSE_MARKS:
+        return None
+    step = 10 * decade
+    bottom = math.floor(low / step) * step
+    top = bottom + step
+    if high > top + 1e-9 * step:
+        return None
+    margin = LABEL_MARGIN * step  # (a mark on the plot's edge is not labelled)
+    return bottom - margin, top + margin
 
 
 def _has_display() -> bool:
@@ -438,23 +468,35 @@ class Recorder:
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
-        views = [rrb.TimeSeriesView(name=group, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m, _ in members],
-                                    plot_legend=self._legend([m for m, _ in members]), axis_x=WHOLE_RUN)
-                 for group, members in metric_groups(varying).items()]
+        views = []
+        for group, members in metric_groups(varying).items():
+            names = [m for m, _ in members]
+            y_range = self._y_range(names)
+            views.append(rrb.TimeSeriesView(
+                name=group, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
+                plot_legend=self._legend(names, y_range), axis_x=WHOLE_RUN,
+                axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range)))
         if constant:  # one: named in the title; more: named in the legend (a long title is cut off), by their full
             # names: a series' short name is that of its group's plot ("min" of valency_min)
             views.append(rrb.TimeSeriesView(
                 name="constant" + (f": {constant[0]}" if len(constant) == 1 else ""), origin=f"/{METRICS}",
-                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant)),
+                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant), None),
                 axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m) for m in constant}))
         return views
 
-    def _legend(self, members: list[str]) -> rrb.PlotLegend:
+    def _y_range(self, members: list[str]) -> tuple[float, float] | None:
+        """A plot's fixed y range: :func:`labelled_range` of its series' values so far, or None (the viewer's fit)."""
+        extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
+        if not extents:
+            return None
+        return labelled_range(min(lo for lo, _ in extents), max(hi for _, hi in extents))
+
+    def _legend(self, members: list[str], y_range: tuple[float, float] | None) -> rrb.PlotLegend:
         """A plot's legend: shown for 2 to 6 series, in the corner where it covers the fewest of their points so far
-        (:func:`legend_corner`)."""
+        (:func:`legend_corner`) on the plot's y range (None: the viewer's fit)."""
         if not 1 < len(members) <= 6:
             return rrb.PlotLegend(visible=False)
-        corner = legend_corner([self._rows.series(m) for m in members])
+        corner = legend_corner([self._rows.series(m) for m in members], y_range)
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
 
     def _about(self) -> str:
