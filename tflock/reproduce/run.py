@@ -46,6 +46,9 @@ def reproduce(name: str, *, quick: bool = False, out: str | Path | None = None, 
 
     start = time.perf_counter()
     exp = experiment(name)
+    options = [("--quick", quick), (f"--out {out}", out is not None), (f"--workers {workers}", workers),
+               (f"--scheduler {scheduler}", scheduler)]
+    command = " ".join([f"tflock reproduce {name}", *(option for option, given in options if given)])
     out = Path(out) if out is not None else default_out(name)
     report = progress or (lambda stage, done, total: None)
     results = Results()
@@ -69,7 +72,7 @@ def reproduce(name: str, *, quick: bool = False, out: str | Path | None = None, 
     matplotlib.use("Agg")  # files only: the figures are drawn without a display
     outcome = exp.report(results, quick)
     point_s = sum(float(table["wall_s"].sum()) for table in results.sweeps.values() if "wall_s" in table)
-    files = _write_report(exp, outcome, out, quick, time.perf_counter() - start, computed, loaded, point_s)
+    files = _write_report(exp, outcome, out, quick, command, time.perf_counter() - start, computed, loaded, point_s)
     return Reproduction(name, out, files, time.perf_counter() - start, computed, loaded)
 
 
@@ -98,7 +101,7 @@ def _atomic_csv(frame: pd.DataFrame, path: Path) -> None:
         raise ConfigError(f"--out: cannot write {path}: {error.strerror or error}") from None
 
 
-def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed: int, loaded: int,
+def _write_report(exp, outcome, out: Path, quick: bool, command: str, wall_s: float, computed: int, loaded: int,
                   point_s: float) -> list[Path]:
     import matplotlib.pyplot as plt
 
@@ -113,7 +116,7 @@ def _write_report(exp, outcome, out: Path, quick: bool, wall_s: float, computed:
     _atomic_csv(outcome.table, table_path)
     size = "quick (--quick: reduced sizes for CI)" if quick else exp.full_size
     header = (f"# {exp.title}\n\nSource: {exp.source}. Size: {size}. "
-              f"Command: `tflock reproduce {exp.name}{' --quick' if quick else ''}`. "
+              f"Command: `{command}`. "
               f"Wall time of this invocation: {wall_s:.0f} s ({platform.processor() or platform.machine()}), "
               f"{computed} runs or sweep points computed and {loaded} read back from an earlier invocation; the "
               f"sweep points took {point_s:.0f} s to compute, summed over the points as each recorded it.\n\n")
