@@ -188,11 +188,12 @@ def classify(sweep: pd.DataFrame) -> pd.DataFrame:
 
     ``agreed``: final e_theta < TOL. ``followed`` (leader runs): final leader_error < TOL. ``connected_late``: the
     R-graph had one component at every logged step of the second half (Theorem 1's premise, seen on that window).
-    ``split``: not agreed (or, with a leader, not followed) although no heading moved in the second half
-    (mean de_theta < FROZEN), in a disconnected graph, while the mean pairwise distance still grows: the groups
-    move apart rigidly with different headings, and in the open plane they are never linked again (the premise
-    of Theorems 2 and 4 fails). ``contradiction``: frozen disagreement in a connected graph, which eqs. (2), (17)
-    and (22) forbid (a fixed point of a connected F has one common heading, the leader's with a leader).
+    ``split``: not agreed (or, with a leader, not followed) although the headings froze in the second half
+    (de_theta, the agents' mean change per step, averaged over the logged steps, < FROZEN), in a disconnected
+    graph, while the mean pairwise distance still grows: the groups move apart rigidly with different headings,
+    and in the open plane they do not turn towards each other again (the premise of Theorems 2 and 4 fails).
+    ``contradiction``: frozen disagreement in a connected graph, which eqs. (2), (17) and (22) forbid (a fixed
+    point of a connected F has one common heading, the leader's with a leader).
     """
     leader = sweep["params.leader.enabled"].astype(bool).to_numpy()
     agreed = sweep["final_e_theta"].to_numpy() < TOL
@@ -278,6 +279,9 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
     open_undone = undone[undone["boundary"] == "open"]
     periodic_undone = undone[undone["boundary"] == "periodic"]
     contradictions = int(replicas["contradiction"].sum())
+    followed = led[led["followed"]]
+    followed_gap = float(np.abs(wrap_pi(followed["final_heading"] - math.radians(THETA0_DEG))).max()) \
+        if len(followed) else math.nan
     agreed = lone[lone["agreed"]].assign(gap=lambda f: np.abs(wrap_pi(f["final_heading"] - f["initial_mean"])))
     gap = {rule: group["gap"].to_numpy() for rule, group in agreed.groupby("rule")}
     laplacian_gap = float(gap["laplacian"].max()) if "laplacian" in gap else math.inf
@@ -325,12 +329,14 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
         f"{TOL} rad, followed = final leader_error < {TOL} rad; k = pi r^2 (n - 1) / L^2, the expected initial "
         "neighbour count. The premise (joint connectivity over bounded intervals, forever) cannot be checked on "
         "a finite run; two proxies: *graph connected all 2nd half* (one R-graph component at every logged step "
-        "of the second half: Theorem 1's premise on that window), and *split for good* (not agreed, no heading "
-        f"moved by more than {FROZEN:g} rad per step in the second half, the final graph is disconnected and the "
-        "mean pairwise distance still grows: groups move apart rigidly with different headings; in the open "
-        "plane they never meet again, so the premise fails). Fractions are written mean [low, high] with "
+        "of the second half: Theorem 1's premise on that window), and *split for good* (not agreed, the headings "
+        f"frozen: their mean change per step (de_theta, the mean over the agents of the step's |change|), averaged "
+        f"over the logged steps of the second half, below {FROZEN:g} rad, the final graph disconnected and the "
+        "mean pairwise distance still growing: groups that move apart rigidly with different headings; in the "
+        "open plane such groups do not turn towards each other again, so the premise fails). Fractions are written "
+        "mean [low, high] with "
         "Wilson's 95 % interval over the replicas of the point (over those whose graph stayed connected for "
-        "*agreed if so*), final clusters with the t interval, median e_theta with the largest in brackets.",
+        "*agreed if so*), final clusters with the t interval, median e_theta with the largest in parentheses.",
         "",
         *_rows(table),
         "",
@@ -344,8 +350,7 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
         f"- Replicas that did not reach the common heading (theta0 with a leader): {len(undone)}. In the open "
         f"plane: {len(open_undone)}, of which {int(open_undone['split'].sum())} split for good: the premise is "
         "violated, their groups, each internally agreed, fly apart with different headings; with a leader, the "
-        "leader (one agent) leaves its followers behind even where the followers agree among themselves "
-        "(linked together but not to the leader). In the periodic box: "
+        "followers that lost the link to the leader keep headings other than theta0. In the periodic box: "
         f"{len(periodic_undone)}, {int((periodic_undone['frozen'] & (periodic_undone['final_clusters'] > 1)).sum())}"
         " of them frozen in disconnected groups at the end, the others still changing; on the torus the groups "
         "meet again, so these runs were cut short (the premise holds only over intervals longer than the run), "
@@ -358,9 +363,9 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
         f"theta(0) (gap to the plain mean: median {np.median(average_gap):.3f}, largest {np.max(average_gap):.3f} "
         f"rad over {len(average_gap)} agreed replicas) that moves with the graphs (median spread of one seed's "
         f"theta_ss across points: {moved['average']:.3f} rad). Both lie near pi: headings are real numbers drawn "
-        "in [0, 2 pi), not circular averages. With the leader every replica that followed ends at theta0 "
-        f"whatever theta(0) (largest |heading - theta0|: {lead['max_gap_to_theta0']:.1e} rad). Figure "
-        "final-heading.",
+        f"in [0, 2 pi), not circular averages. With the leader every one of the {len(followed)} replicas that "
+        f"followed ends at theta0 whatever theta(0) (largest |mean heading - theta0| over them: {followed_gap:.1e} "
+        f"rad; {lead['max_gap_to_theta0']:.1e} rad at r = {r_max:g} in the periodic box). Figure final-heading.",
         "- Rule laplacian moves a heading by (1/g) sum (theta_j - theta_i) per step, less than rule average's "
         "full step to the local mean since g > n: where both rules ran, laplacian agreed in "
         f"{int((pairs['agreed']['laplacian'] <= pairs['agreed']['average']).sum())} of {len(pairs)} points no "
