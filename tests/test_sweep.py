@@ -141,7 +141,7 @@ def test_table_has_a_row_per_point_and_replica(reference: pd.DataFrame) -> None:
     assert table["params.radius"].tolist() == [1.0] * 4 + [1.5] * 2
     assert list(table.columns[:6]) == ["point", "replica", "seed", "params.noise", "params.radius", "steps"]
     assert list(table.columns[-2:]) == ["wall_s", "config"]
-    for prefix in ("final", "mean", "std"):
+    for prefix in ("final", "mean", "std", "min", "max"):
         assert f"{prefix}_polarization" in table.columns and f"{prefix}_largest_cluster" in table.columns
     assert table["final_polarization"].between(0, 1).all() and (table["wall_s"] > 0).all()
     for row in table.itertuples():  # each row's config reruns that replica
@@ -161,6 +161,8 @@ def test_rows_summarise_the_simulation(cpu_engine, make_sim) -> None:
     assert rows[1]["final_polarization"] == pytest.approx(polarization[-1], rel=1e-9)
     assert rows[1]["mean_polarization"] == pytest.approx(np.mean(polarization[3:]))  # steps 3..6 of 6
     assert rows[1]["std_polarization"] == pytest.approx(np.std(polarization[3:]))
+    assert rows[1]["min_polarization"] == pytest.approx(np.min(polarization), rel=1e-9)  # steps 0..6: all of them
+    assert rows[1]["max_polarization"] == pytest.approx(np.max(polarization), rel=1e-9)
 
 
 def test_dask_cluster_gives_the_same_table(reference: pd.DataFrame, sweep_file: Path, cluster) -> None:

@@ -5,6 +5,7 @@ its Dask tasks and ``tflock reproduce`` call nothing else to run a point, so how
 after another, or batched in one kernel launch per step: :mod:`tflock.ensemble`) can change behind it.
 """
 
+import math
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -17,6 +18,8 @@ __all__ = ["run_point", "summarise"]
 
 SUMMARIES = ("mean", "std")
 """Statistics of every metric over the second half of the run (the logged steps >= steps / 2)."""
+EXTREMES = ("min", "max")
+"""Statistics of every metric over the whole run (every logged step, the initial state's included)."""
 POOLED = "_pooled"
 """Suffix of the columns computed over the second halves of all replicas of a point (the same in each of its rows)."""
 
@@ -53,7 +56,8 @@ def _second_half(config: Config, table: Mapping[str, np.ndarray]) -> dict[str, n
 def summarise(config: Config, table: Mapping[str, np.ndarray]) -> dict[str, Any]:
     """A replica's row from its config and metrics table (columns ``step``, ``time`` and one per metric, as
     :meth:`tflock.simulation.Simulation.metrics` gives): ``seed``, ``steps``, ``final_<m>`` (the last logged step),
-    ``mean_<m>`` and ``std_<m>`` over the logged steps >= steps / 2, for each order parameter m (e.g.
+    ``mean_<m>`` and ``std_<m>`` over the logged steps >= steps / 2, ``min_<m>`` and ``max_<m>`` over every logged
+    step where m is not NaN (the smallest distance of a whole run, say), for each order parameter m (e.g.
     ``polarization``) its Binder cumulant ``binder_<m>`` and susceptibility ``susceptibility_<m>`` over those steps
     (:mod:`tflock.observables`), and ``config`` (its full TOML). :func:`run_point` adds ``binder_<m>_pooled`` and
     ``susceptibility_<m>_pooled``, over the second halves of all replicas of the point."""
@@ -65,6 +69,11 @@ def summarise(config: Config, table: Mapping[str, np.ndarray]) -> dict[str, Any]
     for statistic in SUMMARIES:
         function = getattr(np, statistic)
         row.update({f"{statistic}_{m}": float(function(values)) for m, values in late.items()})
+    for m in late:
+        taken = np.asarray(table[m], dtype=np.float64)
+        taken = taken[~np.isnan(taken)]  # (a metric not yet defined at a step, e.g. tau, is NaN there)
+        row.update({f"{statistic}_{m}": float(getattr(taken, statistic)()) if taken.size else math.nan
+                    for statistic in EXTREMES})
     row.update(order_statistics(late, config.params.n))
     row["config"] = config_to_toml(config)
     return row
