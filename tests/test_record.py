@@ -908,13 +908,15 @@ def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> No
     assert fixed(4.0, 690.0) == (-1000 * m, 1000 * (1 + m))
     assert fixed(83.0, 85.6) is None  # 2.6 marks of 1: labelled as fitted
     assert fixed(950.0, 1400.0) is None  # 4.5 marks of 100 around the labelled 1000
+    assert fixed(0.3, 0.36) == (round(0.3 - 0.1 * m, 12), round(0.4 + 0.1 * m, 12))  # low on a mark: 0.3 / 0.1 < 3
     assert fixed(0.5, 0.5) is None and fixed(0.0, math.inf) is None and fixed(0.0, math.nan) is None
 
 
 def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None:
     """The layout sent at the end fixes the y range of a plot whose values span too many marks to be labelled
     (:func:`labelled_range`), from the smallest and largest of all the rows logged, not only of those kept for
-    placing legends (a spike in a dropped row changes it); a plot labelled as fitted keeps the fit."""
+    placing legends (a spike of 0.15 in a dropped row takes the range away: 0.003 to 0.15 is labelled as fitted);
+    a plot labelled as fitted keeps the fit."""
     from tflock.metric_log import TRACE_POINTS
     from tflock.record import labelled_range
 

@@ -1,5 +1,6 @@
 """The recorder's metric rows: each row as one NumPy vector, the rows not yet handed to Rerun, a thinned copy of them
-for placing the plots' legends, and which metrics have kept one value.
+for placing the plots' legends, each metric's smallest and largest value (the plots' fixed ranges), and which
+metrics have kept one value.
 
 A run logs one row of every metric at each metrics step (1000s of rows of 10-40 metrics); handling the row as one
 vector, not metric by metric in Python, keeps the recorder's share of a small swarm's observation to tens of

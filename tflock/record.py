@@ -260,10 +260,12 @@ LABEL_MARGIN = 0.08
 
 def labelled_range(low: float, high: float) -> tuple[float, float] | None:
     """A fixed y range for a plot of values in [low, high] that would otherwise have no labels on its axis: where
-    the values span more than :data:`DENSE_MARKS` marks of their decade (marks too close to be labelled) and lie
-    between two neighbouring marks of the decade above (the next labelled ones), those two: the values then fill at
-    least 0.4 of the plot, between two labelled marks. Else None: the viewer's own fit, which labels the
-    marks of the values' decade, or one mark of the decade above inside the values."""
+    the values span more than :data:`DENSE_MARKS` marks of their decade (marks too close to be labelled on a plot
+    of the default layout) and lie between two neighbouring marks of the decade above (the next labelled ones),
+    those two with a margin: the values then fill at least a third of the plot, between two labelled marks. Else
+    None: the viewer's own fit, which labels the marks of the values' decade, or one mark of the decade above
+    inside the values. Applied whatever a plot's height: a taller plot would label the finer marks too, but the
+    range stays readable."""
     span = high - low
     if not (math.isfinite(span) and span > 0):
         return None
@@ -271,7 +273,7 @@ def labelled_range(low: float, high: float) -> tuple[float, float] | None:
     if span / decade <= DENSE_MARKS:
         return None
     step = 10 * decade
-    bottom = math.floor(low / step) * step
+    bottom = math.floor(low / step + 1e-9) * step  # (0.3 / 0.1 is 2.9999999999999996)
     top = bottom + step
     if high > top + 1e-9 * step:
         return None
@@ -873,8 +875,9 @@ class Recorder:
         """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent.
 
         The layout is sent again once the run has more than one row of metrics: series that never changed share one
-        plot, out of the way of the others, and each legend goes where it covers the fewest points (the viewer opens
-        a file with the last layout it holds)."""
+        plot, out of the way of the others, each legend goes where it covers the fewest points, and a plot that would
+        show no numbers on its y axis gets a labelled range (:func:`labelled_range`; the viewer opens a file with the
+        last layout it holds)."""
         if self._closed:
             return
         self._closed = True
