@@ -127,18 +127,21 @@ def share_text(fraction: float, n: float, percent: bool = False) -> str:
     return estimate.short(2)
 
 
-def bootstrap_ci(samples: Sequence[np.ndarray], statistic: Callable[[list[np.ndarray]], float], value: float,
-                 seed: int = 0, resamples: int = BOOTSTRAP_RESAMPLES) -> Estimate:
-    """Percentile interval of `statistic` over resamples of each sample's replicas with replacement (the samples
-    independently: one per point of a curve). `value` is the statistic of the samples themselves; n in the
-    estimate is the smallest sample."""
+def bootstrap_ci(samples: np.ndarray, statistic: Callable[[np.ndarray], float], value: float, seed: int = 0,
+                 resamples: int = BOOTSTRAP_RESAMPLES) -> Estimate:
+    """Percentile interval of `statistic` over resamples of `samples`' rows with replacement. `samples` holds one
+    row per replica and one column per point of a curve (NaN where that replica gave no value there); a replica
+    runs with the same seed, so from the same initial state, at every point, and its values at the points are
+    correlated: its row is drawn whole, not point by point (which misjudged the spread of the fits of Li & Wang's
+    Fig. 5, as the correlation carries into each coefficient differently). `value` is the statistic of `samples`
+    itself; n in the estimate is the number of rows."""
     rng = np.random.default_rng(seed)
-    arrays = [np.asarray(s, dtype=np.float64) for s in samples]
+    rows = np.asarray(samples, dtype=np.float64)
     draws = np.empty(resamples)
     for k in range(resamples):
-        draws[k] = statistic([a[rng.integers(0, len(a), len(a))] for a in arrays])
+        draws[k] = statistic(rows[rng.integers(0, len(rows), len(rows))])
     lo, hi = np.nanquantile(draws, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
-    return Estimate(float(value), float(lo), float(hi), min((len(a) for a in arrays), default=0))
+    return Estimate(float(value), float(lo), float(hi), len(rows))
 
 
 def verdict(ok: bool) -> str:
