@@ -99,3 +99,39 @@ def test_walls_cost_strategy_1_its_lead_at_tight_turn_limits(quick: Path):
     s1, s2, s3 = (_at(table, "reflecting", 1, s, 10.0, "e_theta") for s in (1, 2, 3))
     assert s1 > max(s2, s3)
     assert _at(table, "reflecting", 1, 1, 180.0, "e_theta") < 0.2  # unlimited turns: it recovers
+
+
+def _runs(values: dict[tuple[str, float], list[float]]) -> pd.DataFrame:
+    """A sweep's rows from {(rule, alpha): the final e_d of seeds 0, 1, ...}."""
+    return pd.DataFrame([{"params.rule": rule, "params.max_turn_deg": alpha, "seed": seed, "final_e_d": value}
+                         for (rule, alpha), row in values.items() for seed, value in enumerate(row)])
+
+
+def test_a_curve_falls_only_if_its_fall_is_significant_and_no_alpha_rises_significantly() -> None:
+    """The check of "the metrics decrease as alpha increases": paired over the initial conditions (seeds), the last
+    alpha's value significantly below the first's, and no alpha significantly above a smaller one; a U-shaped curve
+    whose means still fall from end to end does not pass, nor does a flat one."""
+    from tflock.reproduce.samiloglu import _alpha_trend
+
+    noise = [0.0, 0.1, -0.1, 0.05, -0.05, 0.02]
+
+    def curve(levels: list[float]) -> pd.DataFrame:
+        return _runs({("average", alpha): [level + e for e in noise] for alpha, level in zip((10, 45, 90, 180), levels,
+                                                                                             strict=True)})
+
+    assert _alpha_trend(curve([5.0, 3.0, 2.0, 1.0]), 1, "e_d") == (True, "falls")
+    assert _alpha_trend(curve([5.0, 1.0, 4.0, 2.0]), 1, "e_d") == (False, "rises 45 -> 90")
+    assert _alpha_trend(curve([2.0, 2.0, 2.0, 2.0]), 1, "e_d") == (False, "fall not significant")
+
+
+def test_strategy_1_counts_lowest_by_mean_and_by_its_paired_interval() -> None:
+    """At each alpha strategy 1 is compared with the better (by mean) of 2 and 3, paired by seed: counted as not
+    significantly above it, as lowest by mean, and as significantly lowest."""
+    from tflock.reproduce.samiloglu import STRATEGIES, _lowest_count
+
+    noise = [0.0, 0.1, -0.1, 0.05, -0.05, 0.02]
+    levels = {10: (1.0, 2.0, 3.0), 45: (2.05, 2.0, 3.0), 90: (3.0, 2.0, 2.5)}  # s1 lowest; tied; clearly above
+    runs = _runs({(STRATEGIES[k], alpha): [level[k - 1] + e for e in (noise[::-1] if k == 1 else noise)]
+                  for alpha, level in levels.items() for k in (1, 2, 3)})
+    wide = pd.DataFrame({k: [level[k - 1] for level in levels.values()] for k in (1, 2, 3)}, index=list(levels))
+    assert _lowest_count(runs, wide, "e_d") == (2, 1, 1)
