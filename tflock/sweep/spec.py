@@ -44,8 +44,9 @@ from tflock.config import (
 
 __all__ = ["Point", "Sweep", "SweepSpec", "load_sweep", "value_text"]
 
-ROW_FORMAT = 1
-"""Version of the per-point rows; part of every point's hash, so a change of the row layout recomputes points."""
+ROW_FORMAT = 2
+"""Version of the per-point rows; part of every point's hash, so a change of the row layout recomputes points
+(2: the min_ and max_ columns over the whole run)."""
 
 SEED_MAX = 2**32 - 1
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
