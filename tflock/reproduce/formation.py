@@ -46,6 +46,44 @@ SETUP = {  # section 4, "Initial conditions" (see configs/papers/formation-*.tom
     "params.va_speed": 1.0, "params.out_speed": 1.4, "params.va_heading_deg": 180.0, "params.beta_lim_deg": 5.0,
     "params.world": 200.0, "params.init_length": 76.0, "params.init_width": 36.0,
 }
+#: the forces each strategy's agents use outside and inside the VAIR (Table 1; the strategy's last digit), by
+#: their weights' names
+TABLE1 = {"1": (("align", "va_cohesion"), ("va_align",)), "2": (("va_cohesion",), ("va_align", "align")),
+          "3": (("va_cohesion", "cohesion"), ("va_align", "align")),
+          "4": (("va_cohesion", "cohesion", "va_align", "align"), ("va_align", "align"))}
+
+
+def effective_weights(row: Any) -> tuple:
+    """What of a configuration's weights the model can tell apart: eq. (3), F = sum(alpha_k F_k) / sum(alpha_k)
+    over the forces acting, depends only on the ratios of the weights of the forces acting together, so each side
+    of the VAIR counts by its weights divided by their sum (a force acting alone: 1, whatever its weight).
+    Configurations with equal keys are the same model in exact arithmetic (our kernel may round them apart)."""
+    from fractions import Fraction
+
+    key: list[Any] = [str(row["strategy"])]
+    for forces in TABLE1[str(row["strategy"])[-1]]:
+        weights = [Fraction(row[k]).limit_denominator() for k in forces]
+        total = sum(weights)
+        key.append(tuple(w / total if total else w for w in weights))
+    return tuple(key)
+
+
+def weights_text(row: Any) -> str:
+    """A configuration's weights (align, cohesion, va_align, va_cohesion) as the reports write them: "-" for the
+    cohesion weight of a strategy without Fc (S-x.1, S-x.2: Table 1), and in brackets a weight that cancels in
+    eq. (3) because its force acts alone where it acts (Table 1: Fav alone inside the VAIR in S-x.1, Fcv alone
+    outside it in S-x.2), so that configurations differing only there are one model (:func:`effective_weights`)."""
+    kind = str(row["strategy"])[-1]
+    cells = [f"{row[k]:g}" for k in WEIGHTS]
+    if kind in "12":
+        cells[1] = "-"
+    if kind == "1":
+        cells[2] = f"({cells[2]})"
+    if kind == "2":
+        cells[3] = f"({cells[3]})"
+    return ", ".join(cells)
+
+
 #: Fig. 4 (a)-(f): what each configuration extremises, its strategy, weights (align, cohesion, va_align,
 #: va_cohesion; cohesion 1 where the strategy does not use it) and the paper's value
 PAPER_FIG4 = {
@@ -321,14 +359,18 @@ class Formation(Experiment):
         # Fig. 4: each configuration's quantifier against the paper's number
         lines = ["| Fig. 4 | strategy | weights (a, c, av, cv) | paper | reach the DF | tau (tu) | phi | rho (bl) |",
                  "|---|---|---|---|---|---|---|---|"]
+        one_run = []  # the single-run reading: the paper's number within our runs' range
         for _, r in paper.iterrows():
             q = r["paper_quantity"]
             mine = self._estimate(r, q)
-            w = ", ".join(f"{r[k]:g}" for k in WEIGHTS)
+            w = weights_text(r)
             over = "runs that reach the DF" if q != "tau" else "runs"
+            in_range = bool(r[f"{q}_min"] <= r["paper_value"] <= r[f"{q}_max"])
+            one_run.append(in_range)
             checks.append((f"({r['figure']}) {PAPER_FIG4[r['figure']][1]} {q} = {r['paper_value']:g} ({r['strategy']},"
                            f" weights {w}): ours {mine.text(digits[q], runs=over)}, single runs "
-                           f"{r[f'{q}_min']:.{digits[q]}f} to {r[f'{q}_max']:.{digits[q]}f}",
+                           f"{r[f'{q}_min']:.{digits[q]}f} to {r[f'{q}_max']:.{digits[q]}f} (as one run's value, the "
+                           f"paper's number lies {'within' if in_range else 'outside'} that range)",
                            mine.holds(r["paper_value"])))
             reached = proportion_ci(int(round(r["converged_fraction"] * r["replicas"])), int(r["replicas"]))
             lines.append(f"| ({r['figure']}) | {r['strategy']} | {w} | {q} = {r['paper_value']:g} | "
@@ -356,19 +398,26 @@ class Formation(Experiment):
             if row is None:
                 ext.append(f"| {which} {q} | {value:g} ({strategy}) | no configuration reached the DF in all runs | |")
                 continue
-            w = ", ".join(f"{row[k]:g}" for k in WEIGHTS)
+            w = weights_text(row)
             ext.append(f"| {which} {q} | {value:g} ({strategy}) | {self._estimate(row, q).short(digits[q])} | "
                        f"{row['strategy']}, {w} |")
         n_ok = int((grid["converged_fraction"] == 1).sum())
+        distinct_grid = grid[~grid.apply(effective_weights, axis=1).duplicated()]
+        distinct_ok = int((distinct_grid["converged_fraction"] == 1).sum())
 
-        # Fig. 6: S-2.2's convergence above and below the diagonal
+        # Fig. 6: S-2.2's convergence above and below the diagonal, each distinct model once (effective_weights)
         s22 = grid[grid["strategy"] == "S-2.2"]
-        runs = (s22["converged_fraction"] * s22["replicas"]).round()
-        upper = s22["va_align"] >= s22["align"]
-        above = proportion_ci(int(runs[upper].sum()), int(s22.loc[upper, "replicas"].sum()))
-        below = proportion_ci(int(runs[~upper].sum()), int(s22.loc[~upper, "replicas"].sum()))
+        distinct = s22[~s22.apply(effective_weights, axis=1).duplicated()]
+        runs = (distinct["converged_fraction"] * distinct["replicas"]).round()
+        upper = distinct["va_align"] >= distinct["align"]
+        above = proportion_ci(int(runs[upper].sum()), int(distinct.loc[upper, "replicas"].sum()))
+        below = proportion_ci(int(runs[~upper].sum()), int(distinct.loc[~upper, "replicas"].sum()))
         checks.append((f"Fig. 6: S-2.2 reaches the DF more often with alpha_av >= alpha_a: {above.text(2)} of the "
-                       f"runs there against {below.text(2)} below the diagonal", bool(above.lo > below.hi)))
+                       f"runs there against {below.text(2)} below the diagonal (over the {len(distinct)} distinct "
+                       f"models among its {len(s22)} grid configurations: eq. (3) normalises the weights, so "
+                       "configurations whose weights differ only by a common factor among the forces acting "
+                       "together, or only in the weight of a force acting alone, are one model, counted once)",
+                       bool(above.lo > below.hi)))
 
         # Fig. 7: tau over p (the runs of all deltas pooled) and over delta
         raw7 = sweeps["formation-fig7"]
@@ -434,7 +483,7 @@ class Formation(Experiment):
         for _, r in rho.iterrows():
             gamma = f"{r['ramp_jitter']:g} T" if r["ramp_jitter"] else "0"
             variants.append((f"gamma = {gamma}, minimum separation {r['min_separation']:g} bl", r))
-        lines_r = ["| Fig. 4e (S-1.2; 3, 1, 10, 10) | reach the DF | tau (tu) | phi | rho (bl) |",
+        lines_r = [f"| Fig. 4e ({e['strategy']}; {weights_text(e)}) | reach the DF | tau (tu) | phi | rho (bl) |",
                    "|---|---|---|---|---|"]
         for label, r in variants:
             lines_r.append(f"| {label} | {r['converged_fraction']:.0%} of {r['replicas']} | "
@@ -459,7 +508,12 @@ class Formation(Experiment):
             f"Ours ({size}). Every number of ours is a mean over runs with its 95 % confidence interval, written "
             "mean [low, high] in the tables (Student's t for means, Wilson's interval for fractions); tau counts "
             "the cap for a run that does not reach the DF; phi and rho are over the runs that reach it, at the end "
-            "of the run. A claim **agrees** only where the paper's number lies within our interval.",
+            "of the run. A claim **agrees** only where the paper's number lies within our interval. The paper does "
+            "not say whether Fig. 4's values are means over a configuration's 10 runs or one run's ('we calculate "
+            "the three indexes for each combination'; its Fig. 5, a run of Fig. 4a's configuration, ends at "
+            "t = 870 tu, next to Fig. 4a's 871): we compare means; read as one run's values, "
+            f"{sum(one_run)} of the six lie within the range of our {int(paper['replicas'].min())} runs (each check "
+            "says which).",
             "",
             f"**{agree} of {len(checks)} checks agree.**",
             "",
@@ -467,11 +521,18 @@ class Formation(Experiment):
             "",
             "### Fig. 4: the paper's six configurations, run as published",
             "",
+            "Weights: '-' where the strategy has no such force (Table 1) and the paper gives none; in brackets a "
+            "weight that cancels in eq. (3), F = sum(alpha_k F_k) / sum(alpha_k) over the forces acting, since its "
+            "force acts alone (Fav inside the VAIR in S-x.1, Fcv outside it in S-x.2): the paper gives it, and in "
+            "our reading it changes nothing but the rounding.",
+            "",
             *lines,
             "",
             f"Fig. 4's selection on our reduced grid ({n_ok} of {len(grid)} configurations reach the DF in every "
-            "run; a minimum or maximum over many configurations of few runs each leans toward the extreme, so the "
-            "selected configuration's interval is its own, not that of the selection):",
+            f"run; {distinct_ok} of its {len(distinct_grid)} distinct models, as only the ratios of the weights "
+            "of forces acting together matter; a minimum or maximum over many configurations of few runs each "
+            "leans toward the extreme, so the selected configuration's interval is its own, not that of the "
+            "selection):",
             "",
             *ext,
             "",
@@ -516,7 +577,9 @@ class Formation(Experiment):
             "",
             "Fig. 7 has no numbers in the text, only the shape checked above. The paper gives the noise strength "
             "delta no unit (epsilon in [-delta, delta] is added to the heading's rate, eq. 7); we read it in "
-            "degrees. The failure p silences every force "
+            "degrees. It also says 'the values of epsilon were proportional to theta-dot' without saying how; ours "
+            "are drawn uniform in [-delta, delta] whatever the turn, a reading that may differ from the paper's. The "
+            "failure p silences every force "
             "of the agent for the step (as the paper says for S-2.2 outside the VAIR: 'they will only try to go "
             "towards VA 10 % of the cases' at p = 0.9), so with turns of at most 1 degree per tu an agent at "
             f"|vout| = {vout:g} circles with radius {radius:.0f} / (1 - p) bl on average and then closes on the VA "
