@@ -307,8 +307,10 @@ def comparison(table: pd.DataFrame, replicas: pd.DataFrame, steps: int) -> str:
             lead["followed"] == 1 and lead["max_gap_to_theta0"] < TOL,
         "rule laplacian: theta_ss = mean theta(0), whatever the graphs (not stated in the paper: it follows from "
         "eqs. 17-20, whose I - L / g keeps the mean of the headings)": laplacian_gap < TOL,
-        f"isolated groups (open plane, r = {r_min:g}) do not agree (agreed {share(lone_open, 'agreed')}, split "
-        f"for good {share(lone_open, 'split')}; our bar: at most a quarter agree, at least half split)":
+        f"where the premise fails, agreement fails (the paper: an agent that stays isolated cannot agree; here "
+        f"groups: in the open plane at r = {r_min:g}, split for good {share(lone_open, 'split')}, a proxy that "
+        f"counts only replicas that did not agree, and agreed {share(lone_open, 'agreed')}; our bar: at least half "
+        "split, at most a quarter agree)":
             lone_open["agreed"] <= 0.25 and lone_open["split"] >= 0.5,
         "no frozen disagreement in a connected graph (not stated in the paper: a consequence of Theorem 1)":
             contradictions == 0,

@@ -22,6 +22,7 @@ do not depend on it). ``--quick``: alpha in {1, 10, 180} degrees, 8 initial cond
 """
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -153,14 +154,20 @@ def _over_alphas(results: Results, boundary: str, bound: int, strategy: int, met
     return runs[runs["params.rule"] == STRATEGIES[strategy]].groupby("seed")[f"final_{metric}"].mean()
 
 
+def _nonnegative(estimate: Estimate) -> Estimate:
+    """A t interval of a non-negative quantity (e_d, e_theta, the cluster count) cut at 0: the symmetric interval of
+    a skewed sample, most of it zeros, reaches below what the quantity can be (table.csv keeps it as computed)."""
+    return replace(estimate, lo=max(estimate.lo, 0.0)) if estimate.lo == estimate.lo else estimate
+
+
 def _grid_mean(results: Results, boundary: str, bound: int, strategy: int, metric: str,
                headings: str = "wrapped") -> Estimate:
-    """`metric` averaged over the alpha grid, with the t interval over the initial conditions."""
-    return mean_ci(_over_alphas(results, boundary, bound, strategy, metric, headings).to_numpy())
+    """`metric` averaged over the alpha grid, with the t interval over the initial conditions (cut at 0)."""
+    return _nonnegative(mean_ci(_over_alphas(results, boundary, bound, strategy, metric, headings).to_numpy()))
 
 
 def _cell(row: pd.Series, metric: str) -> str:
-    return Estimate(row[metric], row[f"{metric}_lo"], row[f"{metric}_hi"], int(row["replicas"])).short(3)
+    return _nonnegative(Estimate(row[metric], row[f"{metric}_lo"], row[f"{metric}_hi"], int(row["replicas"]))).short(3)
 
 
 def _heading_gap(results: Results, boundary: str, strategy: int) -> Estimate:
@@ -389,7 +396,8 @@ def _comparison(table: pd.DataFrame, real: pd.DataFrame, results: Results) -> st
         "steps and sees headings at most B - 1 steps old, t - tau < B; its Table 1's tau = randint(t - B, t) "
         "would allow B). Every number below is a "
         "final value (t = T) averaged over the initial conditions, as in the figures, written mean [low, high] with "
-        f"the 95 % t interval over the {int(table['replicas'].min())} initial conditions (the same ones at every "
+        f"the 95 % t interval over the {int(table['replicas'].min())} initial conditions (cut at 0, which none of "
+        "these quantities can go below) (the same ones at every "
         "point, so strategies, settings and readings are compared pair by pair: a difference is significant where "
         "the 95 % interval of the paired difference excludes zero).",
         "",
