@@ -704,7 +704,7 @@ def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) ->
             rec.log_metrics(step, {"order": 0.1 * step, "updated": float(step > 0), "components": 1.0})
         assert rec.constant_metrics() == ("updated", "components")
         assert [plot.name for plot in rec._plots(rec.constant_metrics())] == ["order", "constant"]  # constant last
-    legends = _plot_legends(path)
+    legends = _plot_components(path)
     assert sorted(legends) == ["constant", "order"]
     assert legends["constant"]["PlotLegend:visible"] == [True]
     # in the constant plot each series goes by its full name (valency_min's short name "min" is its group's)
@@ -884,7 +884,7 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     batches = _chunks(path)
     for name in traces:
         assert _last(batches[f"/metrics/{name}"], "SeriesLines:names") == [f"box L/{name.rsplit('_', 1)[1]}"]
-    legends = _plot_legends(path)
+    legends = _plot_components(path)
     assert "gnf_std" in legends and not any("agent" in name for name in legends)
     assert legends["gnf_std"]["PlotLegend:visible"] == [True]
     corner = getattr(Corner2D, legend_corner(list(traces.values()), recorder._y_range(list(traces))))
@@ -928,7 +928,7 @@ def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None
                 order = spike if step == 2 * TRACE_POINTS + 1 else 0.003 + 0.047 * (step % 7) / 6
                 rec.log_metrics(step, {"order": order, "speed": 83.0 + 2.6 * (step % 5) / 4})
             assert rec._rows.series("order")[1].max() < spike  # the spike's row is not among those kept
-        return _plot_legends(path, "ScalarAxis")
+        return _plot_components(path, "ScalarAxis")
 
     axes = record(0.06)
     assert axes["order"]["ScalarAxis:range"] == [list(labelled_range(0.003, 0.06))]
@@ -969,7 +969,7 @@ def test_about_says_what_the_edges_join(make_sim, tmp_path: Path, topology: str,
     assert f"- **edges**: {edges} (" in about
 
 
-def _plot_legends(path: Path, archetype: str = "PlotLegend") -> dict[str, dict[str, list]]:
+def _plot_components(path: Path, archetype: str = "PlotLegend") -> dict[str, dict[str, list]]:
     """The plots of the last layout in a recording: view name -> its components of `archetype` (PlotLegend,
     ScalarAxis)."""
     from rerun.chunk import RrdReader

@@ -32,6 +32,7 @@ host; the 18,040 runs of the full size about 8 minutes with --workers 2): see do
 """
 
 import math
+from fractions import Fraction
 from typing import Any
 
 import pandas as pd
@@ -58,8 +59,6 @@ def effective_weights(row: Any) -> tuple:
     over the forces acting, depends only on the ratios of the weights of the forces acting together, so each side
     of the VAIR counts by its weights divided by their sum (a force acting alone: 1, whatever its weight).
     Configurations with equal keys are the same model in exact arithmetic (our kernel may round them apart)."""
-    from fractions import Fraction
-
     key: list[Any] = [str(row["strategy"])]
     for forces in TABLE1[str(row["strategy"])[-1]]:
         weights = [Fraction(row[k]).limit_denominator() for k in forces]
@@ -69,19 +68,14 @@ def effective_weights(row: Any) -> tuple:
 
 
 def weights_text(row: Any) -> str:
-    """A configuration's weights (align, cohesion, va_align, va_cohesion) as the reports write them: "-" for the
-    cohesion weight of a strategy without Fc (S-x.1, S-x.2: Table 1), and in brackets a weight that cancels in
-    eq. (3) because its force acts alone where it acts (Table 1: Fav alone inside the VAIR in S-x.1, Fcv alone
-    outside it in S-x.2), so that configurations differing only there are one model (:func:`effective_weights`)."""
-    kind = str(row["strategy"])[-1]
-    cells = [f"{row[k]:g}" for k in WEIGHTS]
-    if kind in "12":
-        cells[1] = "-"
-    if kind == "1":
-        cells[2] = f"({cells[2]})"
-    if kind == "2":
-        cells[3] = f"({cells[3]})"
-    return ", ".join(cells)
+    """A configuration's weights (align, cohesion, va_align, va_cohesion) as the reports write them: "-" for a weight
+    whose force the strategy does not use (Table 1: cohesion in S-x.1, S-x.2), and in brackets one that cancels in
+    eq. (3) because its force acts alone wherever it acts (Fav inside the VAIR in S-x.1, Fcv outside it in S-x.2),
+    so that configurations differing only there are one model (:func:`effective_weights`)."""
+    sides = TABLE1[str(row["strategy"])[-1]]
+    together = {k for forces in sides if len(forces) > 1 for k in forces}
+    used = {k for forces in sides for k in forces}
+    return ", ".join("-" if k not in used else f"{row[k]:g}" if k in together else f"({row[k]:g})" for k in WEIGHTS)
 
 
 #: Fig. 4 (a)-(f): what each configuration extremises, its strategy, weights (align, cohesion, va_align,
@@ -402,12 +396,12 @@ class Formation(Experiment):
             ext.append(f"| {which} {q} | {value:g} ({strategy}) | {self._estimate(row, q).short(digits[q])} | "
                        f"{row['strategy']}, {w} |")
         n_ok = int((grid["converged_fraction"] == 1).sum())
-        distinct_grid = grid[~grid.apply(effective_weights, axis=1).duplicated()]
+        distinct_grid = grid[~grid.apply(effective_weights, axis=1).duplicated()]  # each model once
         distinct_ok = int((distinct_grid["converged_fraction"] == 1).sum())
 
         # Fig. 6: S-2.2's convergence above and below the diagonal, each distinct model once (effective_weights)
         s22 = grid[grid["strategy"] == "S-2.2"]
-        distinct = s22[~s22.apply(effective_weights, axis=1).duplicated()]
+        distinct = distinct_grid[distinct_grid["strategy"] == "S-2.2"]
         runs = (distinct["converged_fraction"] * distinct["replicas"]).round()
         upper = distinct["va_align"] >= distinct["align"]
         above = proportion_ci(int(runs[upper].sum()), int(distinct.loc[upper, "replicas"].sum()))

@@ -382,12 +382,9 @@ class LiWang(Experiment):
             group = group.sort_values("alpha")
             rises.append(self._monotone(group.p.to_numpy(), group.p_err.to_numpy(), reps, increasing=True)
                          and self._monotone(group.S.to_numpy(), group.S_err.to_numpy(), reps, increasing=True))
-        drops = {alpha: (g.sort_values("v0").p.iloc[0] - g.sort_values("v0").p.iloc[-1],
-                         g.sort_values("v0").S.iloc[0] - g.sort_values("v0").S.iloc[-1])
-                 for alpha, g in data.groupby("alpha")}
-        drop_errors = {alpha: tuple(math.hypot(g.sort_values("v0")[f"{c}_err"].iloc[0],
-                                               g.sort_values("v0")[f"{c}_err"].iloc[-1]) for c in ("p", "S"))
-                       for alpha, g in data.groupby("alpha")}
+        ends = {alpha: g.sort_values("v0").iloc[[0, -1]] for alpha, g in data.groupby("alpha")}  # slowest, fastest
+        drops = {alpha: tuple(e[c].iloc[0] - e[c].iloc[1] for c in ("p", "S")) for alpha, e in ends.items()}
+        drop_errors = {alpha: tuple(math.hypot(*e[f"{c}_err"]) for c in ("p", "S")) for alpha, e in ends.items()}
         # slower for larger alpha: no drop above the next smaller alpha's by more than 1.96 standard errors
         slower = all(drops[b][c] - drops[a][c] <= 1.96 * math.hypot(drop_errors[a][c], drop_errors[b][c])
                      for a, b in zip(alphas, alphas[1:], strict=False) for c in (0, 1))

@@ -157,7 +157,7 @@ def _over_alphas(results: Results, boundary: str, bound: int, strategy: int, met
 def _nonnegative(estimate: Estimate) -> Estimate:
     """A t interval of a non-negative quantity (e_d, e_theta, the cluster count) cut at 0: the symmetric interval of
     a skewed sample, most of it zeros, reaches below what the quantity can be (table.csv keeps it as computed)."""
-    return replace(estimate, lo=max(estimate.lo, 0.0)) if estimate.lo == estimate.lo else estimate
+    return replace(estimate, lo=max(estimate.lo, 0.0))  # (a NaN bound stays NaN: max keeps its first argument)
 
 
 def _grid_mean(results: Results, boundary: str, bound: int, strategy: int, metric: str,

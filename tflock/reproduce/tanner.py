@@ -75,10 +75,10 @@ def _lyapunov(series: Series) -> np.ndarray:
     return np.asarray(series["W"] if "W" in series else series["Q"], dtype=float)
 
 
-def _valency_grew(series: Series) -> bool:
-    """Whether the mean valency of a switching run ends above where it started."""
+def _valency_ends(series: Series) -> tuple[float, float]:
+    """The mean valency of a switching run at its first and last sample."""
     start, end = (float(np.mean([series[f"valency_{i}"][k] for i in range(N)])) for k in (0, -1))
-    return end > start
+    return start, end
 
 
 def _sync_time(series: Series) -> float:
@@ -178,18 +178,17 @@ class Tanner(Experiment):
             runs = [s for name, s in results.series.items() if name.rsplit("-s", 1)[0] == case]
             if runs:
                 rises = [self._rise(s) for s in runs]
-                times = [_sync_time(s) for s in runs]
+                synced = [t for t in map(_sync_time, runs) if not math.isnan(t)]  # the runs that synchronised
                 row.update({
                     "single_runs": len(runs),
                     "lyapunov_nonincreasing_fraction": float(np.mean([r <= RISE_TOL for r in rises])),
                     "lyapunov_largest_relative_rise": float(np.max(rises)),
                     "single_min_distance_min": float(min(np.min(s["min_distance"]) for s in runs)),
-                    "single_valency_grew_fraction": float(np.mean([_valency_grew(s) for s in runs]))
+                    "single_valency_grew_fraction": float(np.mean([end > start for start, end
+                                                                   in map(_valency_ends, runs)]))
                     if case == "switching" else math.nan,
-                    "single_sync_time_median": float(np.nanmedian(times)) if not np.all(np.isnan(times))
-                    else math.nan,
-                    "single_sync_time_min": float(np.nanmin(times)) if not np.all(np.isnan(times)) else math.nan,
-                    "single_sync_time_max": float(np.nanmax(times)) if not np.all(np.isnan(times)) else math.nan,
+                    **{f"single_sync_time_{name}": float(statistic(synced)) if len(synced) else math.nan
+                       for name, statistic in (("median", np.median), ("min", np.min), ("max", np.max))},
                 })
             rows.append(row)
         return pd.DataFrame(rows)
@@ -276,8 +275,7 @@ class Tanner(Experiment):
         switching = results.series["switching-s0"]
         runs = [series for name, series in results.series.items() if name.startswith("switching-")]
         starts, ends = ([bool(series["connected"][k]) for series in runs] for k in (0, -1))
-        valency_start, valency_end = (float(np.mean([switching[f"valency_{i}"][k] for i in range(N)]))
-                                      for k in (0, -1))
+        valency_start, valency_end = _valency_ends(switching)
 
         def pct(x: float, n: float | None = None) -> str:
             """A fraction in per cent; of `n` replicas, with its Wilson 95 % interval."""
