@@ -72,6 +72,29 @@ def test_binning_matches_reference(engine, dim: int, mode: int, chunks: bool) ->
     assert levels == set(range(DENSITY_LEVELS))  # every level occurs: the test covers the thresholds
 
 
+@pytest.mark.parametrize("chunks", [
+    pytest.param(True, id="chunks", marks=pytest.mark.skipif(
+        ARCH != "cpu", reason="the chunks in order are the CPU's binning (on lavapipe their additions were lost)")),
+    pytest.param(False, id="each")])
+def test_rolled_box_matches_reference_of_wrapped_positions(engine, chunks: bool) -> None:
+    """A periodic box drawn from another corner (`rolled`, as formation draws its torus centred on the VA): the
+    field of wrap(x - corner), with origin 0, whether the corner lies below the box's own (x - corner beyond the
+    box wraps down) or inside it (below it wraps up); the grid of the model is not used."""
+    rng = np.random.default_rng(8)
+    n, box, size = 5000, 16.0, 32
+    pos = clustered_positions(rng, n, 2, box)
+    d = quantised_directions(rng, n, 2)
+    for corner in (np.array([-5.5, 3.0]), np.array([7.25, -0.5])):  # dyadic: exact in float32
+        field = Field(n, 2, size)
+        field._on_cpu = chunks
+        (im,) = field.compute(upload(pos.T), upload(d.T), box=box, bounded=True, mode=VECTORS, rolled=corner)
+        wrapped = np.mod(pos.astype(np.float64) - corner, box)
+        classes, counts = reference_field(wrapped, d, np.zeros(2), box / size, size)
+        assert im.origin == (0.0, 0.0) and im.pixel == box / size and im.agents == n
+        np.testing.assert_array_equal(im.classes, classes[0])
+        assert not np.array_equal(classes[0], reference_field(pos, d, np.zeros(2), box / size, size)[0])
+
+
 def test_binning_angles_and_rows(engine) -> None:
     rng = np.random.default_rng(5)
     n, box, size = 4000, 8.0, 16

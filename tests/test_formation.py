@@ -440,7 +440,10 @@ def test_frame_draws_va_and_rules(engine):
     selected = np.array([0, 7, 19, 42])
     frame = model.frame(selected, 100)
     state = model.state()
-    assert np.allclose(frame.positions, state["x"][selected], atol=1e-4)
+    # the torus drawn centred on the VA: x at wrap(x - a(t) + world / 2)
+    corner = rf.va_position(3, p) - p.world / 2
+    assert np.allclose(frame.positions, np.mod(state["x"][selected] - corner, p.world), atol=1e-4)
+    assert model.world().centred_on == "the virtual agent"
     # arrows: the velocity of the step just made over |vout| (tflock.frame's convention)
     relative = state["speed"][selected] / p.out_speed
     assert np.allclose(frame.directions[:, 0], np.cos(state["theta"][selected]) * relative, atol=1e-5)
@@ -448,9 +451,33 @@ def test_frame_draws_va_and_rules(engine):
     assert frame.ids.tolist() == selected.tolist()
     (marker,) = frame.markers
     assert marker.name == "virtual_agent" and marker.circle == p.vair
-    assert np.allclose(marker.position, rf.va_position(3, p))
+    assert np.allclose(marker.position, [p.world / 2] * 2)
     from tflock.models.formation import RULE_COLORS
     assert np.array_equal(frame.colors, RULE_COLORS[model.rules()[selected]])
+
+
+def test_frame_keeps_the_swarm_whole_across_the_torus_edge(engine):
+    """Once the VA has reached the torus's edge (100 steps at |va| = 1 from the centre of a world of 200), the agents
+    around it lie on both sides of the edge; drawn centred on the VA they are one group around the box's centre,
+    at their true distances from the VA, and the field of all agents is binned where they are drawn."""
+    p = params(n=60, init_length=30.0, init_width=20.0)
+    model = Formation(p, 0, engine)
+    model.advance(100)
+    x = model.state()["x"]
+    va = model.va_position()
+    gap = x - va
+    gap -= p.world * np.round(gap / p.world)
+    near = np.linalg.norm(gap, axis=1) < p.world / 4
+    assert near.sum() >= 10 and np.ptp(x[near, 0]) > p.world / 2  # cut apart by the edge where drawn as simulated
+    frame = model.frame(np.arange(p.n), 100, field_size=8)
+    assert np.ptp(frame.positions[near, 0]) < p.world / 2  # drawn whole
+    np.testing.assert_allclose(frame.positions[near], p.world / 2 + gap[near], atol=1e-3)
+    (image,) = frame.fields
+    assert image.origin == (0.0, 0.0) and image.agents == p.n
+    pixels = np.minimum((frame.positions / image.pixel).astype(int), 7)
+    drawn = np.zeros((8, 8), int)
+    np.add.at(drawn, (pixels[:, 1], pixels[:, 0]), 1)
+    assert np.array_equal(image.classes > 0, drawn > 0)
 
 
 def test_recording_and_state_round_trip(make_sim, tmp_path):

@@ -643,7 +643,12 @@ def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, pa
     batches = _chunks(path)
     agents = batches["/world/agents"]
     pos = np.array(_last(agents, f"{kind}:positions"))
-    np.testing.assert_allclose(pos, state["x"][selected], atol=1e-4)
+    expected_pos = state["x"][selected].astype(np.float64)
+    if world.centred_on:  # formation: the torus drawn centred on the virtual agent
+        expected_pos = np.mod(expected_pos - (sim.model.va_position() - world.box / 2), world.box)
+        va = np.array(_last(batches["/world/virtual_agent"], "Points2D:positions"))
+        np.testing.assert_allclose(va, [[world.box / 2] * 2])
+    np.testing.assert_allclose(pos, expected_pos, atol=1e-4)
     assert len(selected) == drawn_count and np.ptp(selected) > n // 2  # a sample spread over all ids
     assert _last(agents, f"{kind}:labels") == [f"agent {i}" for i in selected]
     assert _last(agents, f"{kind}:radii") == pytest.approx([-point_radius(drawn_count)])  # UI points

@@ -134,6 +134,17 @@ def _direction(dirs: ti.template(), e, a: ti.template(), b: ti.template(), row, 
     return _fixed_unit(ua, ub, normalise)
 
 
+@ti.func
+def _pixel_index(x, lo, inv, size, wrap: ti.template()):
+    """Pixel of coordinate x (scalar or vector) in a window of `size` pixels of side 1 / inv from `lo`: clamped to
+    the window, or with `wrap` (the window is a periodic box's side, x in the box and lo within a side of it: x - lo
+    lies within a side and a half of the window) wrapped into it."""
+    i = ti.cast(ti.floor((x - lo) * inv), ti.i32)
+    if ti.static(wrap):
+        i = ti.select(i < 0, i + size, ti.select(i >= size, i - size, i))
+    return ti.math.clamp(i, 0, size - 1)
+
+
 #: agents a chunk of :func:`_bin` takes, one after the other
 CHUNK = 4096
 
@@ -161,11 +172,12 @@ def _lane_row(arr: ti.template(), row, i0, last, mode: ti.template()):
 
 
 @ti.kernel
-def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.template(), pos: ti.types.ndarray(),
-         dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(), inv_pixel: ti.f64, size: ti.i32,
-         count: ti.types.ndarray(), sums: ti.types.ndarray()):
+def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.template(), wrap: ti.template(),
+         pos: ti.types.ndarray(), dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(), inv_pixel: ti.f64,
+         size: ti.i32, count: ti.types.ndarray(), sums: ti.types.ndarray()):
     """Add every agent to its pixel of projection `plane`: one to the count, its unit direction (projected onto the
-    plane, then made unit again) in fixed point to the sums; positions outside the window go to the edge pixels.
+    plane, then made unit again) in fixed point to the sums; positions outside the window go to the edge pixels, or
+    with `wrap` (a periodic box drawn from the corner `lo`) to the pixels they wrap into (:func:`_pixel_index`).
 
     Chunks of agents in parallel, each in order, LANES agents at a time (pixels and fixed-point directions computed
     as vectors, which LLVM vectorises); a run of agents in one pixel is added with one atomic per array (the models
@@ -190,10 +202,8 @@ def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.tem
             else:
                 ub, ua = sin_cos(_lane_row(dirs, row, i0, end - 1, mode))
             fx, fy = _fixed_unit(ua, ub, normalise)
-            i = ti.math.clamp(ti.cast(ti.floor((_lane_row(pos, a, i0, end - 1, VECTORS) - lo_a) * inv), ti.i32), 0,
-                              size - 1)
-            j = ti.math.clamp(ti.cast(ti.floor((_lane_row(pos, b, i0, end - 1, VECTORS) - lo_b) * inv), ti.i32), 0,
-                              size - 1)
+            i = _pixel_index(_lane_row(pos, a, i0, end - 1, VECTORS), lo_a, inv, size, wrap)
+            j = _pixel_index(_lane_row(pos, b, i0, end - 1, VECTORS), lo_b, inv, size, wrap)
             pixel = j * size + i
             for k in ti.static(range(LANES)):
                 if i0 + k < end:
@@ -210,9 +220,9 @@ def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.tem
 
 
 @ti.kernel
-def _bin_each(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.template(), pos: ti.types.ndarray(),
-              dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(), inv_pixel: ti.f64, size: ti.i32,
-              count: ti.types.ndarray(), sums: ti.types.ndarray()):
+def _bin_each(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.template(), wrap: ti.template(),
+              pos: ti.types.ndarray(), dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(),
+              inv_pixel: ti.f64, size: ti.i32, count: ti.types.ndarray(), sums: ti.types.ndarray()):
     """:func:`_bin` on GPU arches: an agent a thread, added with one atomic per array (the same integer sums). The
     chunks of agents in order suit a CPU's few threads, not a GPU's, and on Vulkan (Mesa's lavapipe) most of their
     additions were lost (18 of 5000 agents counted)."""
@@ -220,10 +230,8 @@ def _bin_each(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: t
     for e in range(n):
         fx, fy = _direction(dirs, e, a, b, row, mode, normalise)
         inv = ti.cast(inv_pixel, ti.f32)
-        i = ti.math.clamp(ti.cast(ti.floor((ti.cast(pos[a, e], ti.f32) - ti.cast(lo[a], ti.f32)) * inv), ti.i32), 0,
-                          size - 1)
-        j = ti.math.clamp(ti.cast(ti.floor((ti.cast(pos[b, e], ti.f32) - ti.cast(lo[b], ti.f32)) * inv), ti.i32), 0,
-                          size - 1)
+        i = _pixel_index(ti.cast(pos[a, e], ti.f32), ti.cast(lo[a], ti.f32), inv, size, wrap)
+        j = _pixel_index(ti.cast(pos[b, e], ti.f32), ti.cast(lo[b], ti.f32), inv, size, wrap)
         _add(count, sums, plane, j * size + i, size, 1, ti.cast(fx, ti.i64), ti.cast(fy, ti.i64))
 
 
@@ -355,10 +363,14 @@ class Field:
         self._on_cpu = impl.current_cfg().arch in CPU_ARCHES  # binning: chunks in order (CPU), or an agent a thread
 
     def compute(self, pos: ti.Ndarray, dirs: ti.Ndarray, *, box: float, bounded: bool, grid=None,
-                mode: int = VECTORS, row: int = 0) -> list[FieldImage]:
+                mode: int = VECTORS, row: int = 0, rolled: np.ndarray | None = None) -> list[FieldImage]:
         """The field of the agents at `pos` (component-major (dim, n)) with directions `dirs` in the same order
         (:data:`VECTORS` or :data:`UNIT_VECTORS` (dim, n), :data:`ANGLES` (n,), or row `row` of a (rows, n) array
-        with :data:`ANGLE_ROW`). `grid`: the model's :class:`~tflock.neighbors.CellGrid`, built for these positions."""
+        with :data:`ANGLE_ROW`). `grid`: the model's :class:`~tflock.neighbors.CellGrid`, built for these positions.
+        `rolled`: a periodic box drawn from this corner (a point of the box) instead of from 0, as a frame whose
+        positions are wrap(x - rolled) draws it: each agent is binned there, and the images keep origin 0."""
+        if rolled is not None:
+            return self._from_agents(pos, dirs, np.asarray(rolled, np.float64), float(box), mode, row, wrap=True)
         if grid is not None and cell_layout(grid):
             return self._from_cells(grid, dirs, mode, row)
         if bounded:
@@ -389,7 +401,7 @@ class Field:
         return images
 
     def _from_agents(self, pos: ti.Ndarray, dirs: ti.Ndarray, lo: np.ndarray, side: float, mode: int,
-                     row: int) -> list[FieldImage]:
+                     row: int, wrap: bool = False) -> list[FieldImage]:
         size = self.size
         if self._binned is None:
             self._binned = (ti.ndarray(ti.i32, (self.planes, size, size)),
@@ -401,13 +413,14 @@ class Field:
         images = []
         binning = _bin if self._on_cpu else _bin_each
         for plane in range(self.planes):
-            binning(self.n, mode, self._normalise(mode), plane, pos, dirs, row, lo64, size / side, size, count, sums)
+            binning(self.n, mode, self._normalise(mode), plane, wrap, pos, dirs, row, lo64, size / side, size, count,
+                    sums)
             classes = np.zeros((size, size), np.uint8)
             counts = np.zeros((size, size), np.int32)
             _classify(plane, size, self.n, count, sums, classes, counts)
             a, b = PLANES[plane]
-            images.append(FieldImage(PLANE_NAMES[plane], classes, (float(lo64[a]), float(lo64[b])), side / size,
-                                     int(counts.sum())))
+            origin = (0.0, 0.0) if wrap else (float(lo64[a]), float(lo64[b]))
+            images.append(FieldImage(PLANE_NAMES[plane], classes, origin, side / size, int(counts.sum())))
         return images
 
 

@@ -33,6 +33,9 @@ class WorldSpec:
     boundary: str  # "periodic" | "reflecting" | "open"
     box: float  # side of the box (open space: side of the initial square)
     dt: float = 1.0  # simulated time per step; the `time` timeline is step * dt seconds
+    # a periodic 2D world drawn rolled so that this point (named here, e.g. "the virtual agent") stays at the box's
+    # centre: the frames' positions are wrap(x - c + box / 2) for the point c; "" = drawn as simulated
+    centred_on: str = ""
 
     def __post_init__(self) -> None:
         if self.dim not in (2, 3):
@@ -43,6 +46,8 @@ class WorldSpec:
             raise ValueError(f"box must be positive, got {self.box}")
         if not self.dt > 0:
             raise ValueError(f"dt must be positive, got {self.dt}")
+        if self.centred_on and (self.dim != 2 or self.boundary != "periodic"):
+            raise ValueError("only a periodic 2D world is drawn centred on a point")
 
     @property
     def bounded(self) -> bool:

@@ -421,7 +421,8 @@ class Recorder:
                 margin = 0.02 * world.box
                 bounds = rrb.VisualBounds2D(x_range=[-margin, world.box + margin],
                                             y_range=[-world.box - margin, margin])  # the flipped y of `world`
-            world_view: rrb.View = rrb.Spatial2DView(name="world", origin="/", contents=[f"/{WORLD}/**"],
+            name = f"world, centred on {world.centred_on}" if world.centred_on else "world"
+            world_view: rrb.View = rrb.Spatial2DView(name=name, origin="/", contents=[f"/{WORLD}/**"],
                                                      visual_bounds=bounds)
         else:
             world_view = rrb.Spatial3DView(name="world", origin=f"/{WORLD}")
@@ -507,6 +508,12 @@ class Recorder:
         lines = ["# What the views show", ""]
         lines.append(f"**world**: {self.drawn or 'the agents'}; {world.dim}D, {world.boundary} boundary, box "
                      f"{world.box:g}" + (", y up" if world.dim == 2 else "") + ". Hover an agent for its id.")
+        if world.centred_on:
+            lines.append("")
+            lines.append(f"The periodic box is drawn centred on {world.centred_on}: a point x of the world is drawn "
+                         f"at wrap(x - c + {world.box:g} / 2), c being {world.centred_on}'s position: the view follows "
+                         f"it, and the agents around it are never cut apart by the box's edge. Drawn coordinates are "
+                         f"relative to it; the metrics table and checkpoints hold the world's own.")
         lines.append("")
         lines.append("- **arrows**: each agent's velocity over the step just made, relative to the model's reference "
                      "speed (a full-speed agent's arrow has the same length in every frame).")
@@ -550,6 +557,7 @@ class Recorder:
                 boundary=world.boundary,
                 box=float(world.box),
                 dt=float(world.dt),
+                **({"centred_on": world.centred_on} if world.centred_on else {}),
                 metrics=list(self.metrics),
                 metric_descriptions=list(self.metrics.values()),
             ),

@@ -105,15 +105,16 @@ class Model(ABC):
         return self._edge_finder.edges(np.asarray(positions), max_edges).astype(np.float32)
 
     def _field_images(self, size: int, pos: ti.Ndarray, dirs: ti.Ndarray, mode: int, grid=None,
-                      row: int = 0) -> list[FieldImage]:
+                      row: int = 0, rolled: np.ndarray | None = None) -> list[FieldImage]:
         """The field of all agents (`pos`, `dirs` in the same element order; `grid` built for `pos`), or none for
-        size 0."""
+        size 0; `rolled`: see :meth:`tflock.field.Field.compute`."""
         if size <= 0:
             return []
         world = self.world()
         if self._field is None or self._field.size != size:
             self._field = Field(self.params.n, world.dim, size)
-        return self._field.compute(pos, dirs, box=world.box, bounded=world.bounded, grid=grid, mode=mode, row=row)
+        return self._field.compute(pos, dirs, box=world.box, bounded=world.bounded, grid=grid, mode=mode, row=row,
+                                   rolled=rolled)
 
     def first_non_finite(self) -> tuple[int, str] | None:
         """``(agent, quantity)`` of the smallest agent id with a non-finite position, heading or velocity (one

@@ -782,25 +782,30 @@ class Formation(Model):
     def frame(self, selected: np.ndarray, max_edges: int, field_size: int = 0) -> Frame:
         """Agents coloured by what drives them this step (red: separation, green: inside the VAIR, blue: outside,
         grey: communication failure) with arrows of their velocity / |vout|, edges within the vision radius; the VA
-        with its heading and VAIR circle."""
+        with its heading and VAIR circle. The torus is drawn centred on the VA (:meth:`world`): each position x as
+        wrap(x - a(t) + world / 2), so the agents around the VA are never cut apart by the box's edge."""
         p = self.params
         rows = self._rows(selected)
         relative = rows[:, 4] / p.out_speed
         directions = (np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1) * relative[:, None]).astype(np.float32)
         va_heading = ref.va_direction(p).astype(np.float32)
-        marker = Marker("virtual_agent", self.va_position().astype(np.float32), va_heading * p.va_speed / p.out_speed,
+        corner = self.va_position() - p.world / 2  # the point drawn at the box's corner
+        drawn = np.mod(rows[:, :2].astype(np.float64) - corner, p.world).astype(np.float32)
+        marker = Marker("virtual_agent", np.full(2, p.world / 2, np.float32), va_heading * p.va_speed / p.out_speed,
                         circle=p.vair, color=VA_COLOR)
         k = self.cur
         return Frame(
-            positions=rows[:, :2].astype(np.float32),
+            positions=drawn,
             directions=directions,
             arrow_length=arrow_length(p.world, len(selected)),
             colors=RULE_COLORS[rows[:, 3].astype(np.int64)],
-            edges=self._edges_among(rows[:, :2], max_edges, p.radius),
+            edges=self._edges_among(drawn, max_edges, p.radius),
             markers=[marker],
             ids=selected,
-            fields=self._field_images(field_size, self.pos[k], self.trig, UNIT_VECTORS),
+            fields=self._field_images(field_size, self.pos[k], self.trig, UNIT_VECTORS, rolled=corner),
         )
 
     def world(self) -> WorldSpec:
-        return WorldSpec(dim=2, boundary="periodic", box=self.params.world, dt=self.dt)
+        """The torus, drawn centred on the virtual agent (:meth:`frame`)."""
+        return WorldSpec(dim=2, boundary="periodic", box=self.params.world, dt=self.dt,
+                         centred_on="the virtual agent")
