@@ -750,6 +750,11 @@ def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     assert np.array(_last(batches["/legend/field/end"], "Points2D:positions"))[0, 0] >= level_ends.max() - 1e-6
     ends = names[:, 0] + np.array([_label_width(label) for label in labels]) / 2
     assert swatches[:, 0].min() > ends.max()  # the field's swatches right of the category names
+    # and one where the legend starts: left of the dots' left halves and of the centred title's left half (without
+    # it a legend as wide as the view, categories beside the field, lost both at 1280 x 800: seen)
+    start = np.array(_last(batches["/legend/start"], "Points2D:positions"))[0, 0]
+    title = np.array(_last(batches["/legend/title"], "Points2D:positions"))[0, 0]
+    assert start < dots[:, 0].min() - 0.1 and start <= title - _label_width(legend.title) / 2
     # the notes: each name level with its dot and right of it, all right of the category names
     marks = np.array(_last(batches["/legend/notes"], "Points2D:positions"))
     notes = np.array(_last(batches["/legend/notes/names"], "Points2D:positions"))

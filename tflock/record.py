@@ -116,6 +116,8 @@ LEGEND_PX = 45.0
 #: below the point (the label's top edge at the point, about 20 px high), so a label anchored 11 px up is level
 #: with the swatches of its row
 LABEL_RISE = 11.0 / LEGEND_PX
+#: half a legend dot's width (6 UI points of radius) and a little margin, in legend units
+DOT_HALF_WIDTH = 8.0 / LEGEND_PX
 
 
 def _label_width(text: str) -> float:
@@ -602,6 +604,12 @@ class Recorder:
         title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}
         if legend is not None:
             rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, -1.85]], labels=legend.title, **title), static=True)
+            # an invisible point left of everything drawn: the view fits its points, so where the legend is wide
+            # enough to fill the view's width (categories beside the field) the centred title's left half and the
+            # dots' left halves would fall outside it (the mirror of the field's end point)
+            left = -_label_width(legend.title) / 2
+            left = min(left, -1.3 - _label_width("180°") / 2 if legend.wheel else -0.8 - DOT_HALF_WIDTH)
+            rec.log(f"{LEGEND}/start", rr.Points2D([[left - DOT_HALF_WIDTH, 0.0]], radii=0.0), static=True)
             if legend.wheel:
                 angle = np.arange(24) * (2 * math.pi / 24)
                 vectors = np.stack([np.cos(angle), -np.sin(angle)], axis=1).astype(np.float32)
