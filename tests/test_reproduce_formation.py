@@ -32,6 +32,10 @@ def test_formation_quick_reaches_the_desired_formation_and_fails_at_high_p(tmp_p
         assert fig7[(0.9, delta)] == CAP
     text = (out / "comparison.md").read_text()
     assert "95 % CI" in text and "### rho: what sets it" in text and "### The torus" in text
+    # a Fig. 7 cell whose runs all stop at the cap says so, with no interval for a tau that is not known
+    assert f"| 0.9 | none by {CAP} |" in text and f"{CAP} [{CAP}, {CAP}]" not in text
+    # the rho variants' fractions that reach the DF with their Wilson interval
+    assert "| gamma = 0, minimum separation 1 bl | 1.00 [" in text
 
 
 def test_report_brackets_the_weights_that_cancel_and_the_model_agrees(make_sim):

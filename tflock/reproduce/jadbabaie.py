@@ -27,7 +27,7 @@ import pandas as pd
 from tflock.config import config_to_dict, load_config, tomllib
 from tflock.reference import wrap_pi
 from tflock.reproduce.experiment import Experiment, Report, Results
-from tflock.reproduce.stats import Estimate, mean_ci, share_text
+from tflock.reproduce.stats import Estimate, mean_ci, proportion_ci, share_text
 
 N = 50
 BOX = math.sqrt(N)  # density 1
@@ -133,7 +133,9 @@ class Jadbabaie(Experiment):
             ax.axhline(TOL, color="grey", lw=0.8)
             ax.set_xlabel("step")
             ax.legend(fontsize=7)
-        figure.suptitle(f"n = {N}, density 1, v0 = {SPEED}, no noise; seed 0 (grey: tolerance {TOL} rad)")
+        figure.suptitle(f"n = {N}, density 1, v0 = {SPEED}, no noise; seed 0 (grey: tolerance {TOL} rad)\nvalues "
+                        f"below {FLOOR:g} rad, the f32 resolution of a heading, drawn at {FLOOR:g}", fontsize=10)
+        figure.tight_layout()
         return figure
 
     @staticmethod
@@ -144,12 +146,16 @@ class Jadbabaie(Experiment):
         colors = {"periodic": "C0", "open": "C1"}
         for (leader, rule, boundary), group in table.groupby(["leader", "rule", "boundary"]):
             ax, value = (right, "followed") if leader else (left, "agreed")
-            ax.plot(group["k_expected"], group[value], marker="o" if rule == "average" else "s", color=colors[boundary],
-                    ls="--" if rule == "laplacian" else "-", label=f"{rule}, {boundary}: {value}")
+            intervals = [proportion_ci(int(round(f * n)), n)
+                         for f, n in zip(group[value], group["replicas"], strict=True)]
+            bars = np.maximum(np.array([[e.value - e.lo, e.hi - e.value] for e in intervals]).T, 0.0)  # (rounding)
+            ax.errorbar(group["k_expected"], group[value], yerr=bars, marker="o" if rule == "average" else "s",
+                        color=colors[boundary], ls="--" if rule == "laplacian" else "-", capsize=2,
+                        label=f"{rule}, {boundary}: {value}")
             if rule == "average":
                 ax.plot(group["k_expected"], group["connected_late"], marker="x", color=colors[boundary], ls=":",
                         lw=0.8, label=f"{rule}, {boundary}: graph connected all 2nd half")
-        left.set_ylabel("fraction of replicas")
+        left.set_ylabel("fraction of replicas (bars: Wilson 95 %)")
         left.set_title("leaderless: e_theta < tol at the end")
         right.set_title("leader: followers' leader_error < tol at the end")
         for ax in (left, right):
