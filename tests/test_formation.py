@@ -471,6 +471,7 @@ def test_frame_keeps_the_swarm_whole_across_the_torus_edge(engine):
     assert near.sum() >= 10 and np.ptp(x[near, 0]) > p.world / 2  # cut apart by the edge where drawn as simulated
     frame = model.frame(np.arange(p.n), 100, field_size=8)
     assert np.ptp(frame.positions[near, 0]) < p.world / 2  # drawn whole
+    assert ((frame.positions >= 0) & (frame.positions < p.world)).all()  # inside the drawn box
     np.testing.assert_allclose(frame.positions[near], p.world / 2 + gap[near], atol=1e-3)
     (image,) = frame.fields
     assert image.origin == (0.0, 0.0) and image.agents == p.n

@@ -515,7 +515,8 @@ class Recorder:
             lines.append(f"The periodic box is drawn centred on {world.centred_on}: a point x of the world is drawn "
                          f"at wrap(x - c + {world.box:g} / 2), c being {world.centred_on}'s position: the view follows "
                          f"it, and the agents around it are never cut apart by the box's edge. Drawn coordinates are "
-                         f"relative to it; the metrics table and checkpoints hold the world's own.")
+                         f"relative to it (it is drawn at the box's centre); the metrics table and checkpoints hold "
+                         f"the world's own.")
         lines.append("")
         lines.append("- **arrows**: each agent's velocity over the step just made, relative to the model's reference "
                      "speed (a full-speed agent's arrow has the same length in every frame).")

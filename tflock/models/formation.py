@@ -790,7 +790,9 @@ class Formation(Model):
         directions = (np.stack([np.cos(rows[:, 2]), np.sin(rows[:, 2])], axis=1) * relative[:, None]).astype(np.float32)
         va_heading = ref.va_direction(p).astype(np.float32)
         corner = self.va_position() - p.world / 2  # the point drawn at the box's corner
-        drawn = np.mod(rows[:, :2].astype(np.float64) - corner, p.world).astype(np.float32)
+        # (wrapped again in float32: a float64 value just below the world's side may round up to it)
+        drawn = np.mod(np.mod(rows[:, :2].astype(np.float64) - corner, p.world).astype(np.float32),
+                       np.float32(p.world))
         marker = Marker("virtual_agent", np.full(2, p.world / 2, np.float32), va_heading * p.va_speed / p.out_speed,
                         circle=p.vair, color=VA_COLOR)
         k = self.cur
