@@ -102,6 +102,16 @@ def test_default_toml_parses_back_to_the_defaults() -> None:
             assert lines[i - 1].startswith("#"), line
 
 
+@pytest.mark.parametrize("model", sorted(PARAMS_SCHEMAS))
+def test_each_configs_header_example_is_one_of_its_keys(model: str) -> None:
+    """The header of `tflock config show MODEL` (and configs/MODEL.toml) suggests an override the model accepts
+    (formation has no params.noise: the header once suggested it to every model)."""
+    text = default_config_toml(model)
+    assert (REPO / "configs" / f"{model}.toml").read_text() == text
+    key, value = parse_override(text.splitlines()[1].split("--set ")[1])
+    assert load_config(model=model, overrides={key: value}) != load_config(model=model)
+
+
 def test_configs_vicsek_toml_is_the_default(tmp_path: Path) -> None:
     path = REPO / "configs" / "vicsek.toml"
     assert path.read_text() == default_config_toml("vicsek")
@@ -303,9 +313,16 @@ def test_open_space_allows_any_speed() -> None:
     assert load_config(overrides=["params.boundary=open", "params.speed=200"]).params.speed == 200.0
 
 
-def test_several_errors_report_the_first_and_count_the_rest() -> None:
+def test_several_errors_report_the_first_and_name_the_rest() -> None:
     message = config_error(overrides=["params.n=0", "params.radius=0", "steps=-1"])
-    assert message == "steps: must be between 0 and 2147483647, got -1 (and 2 more)"
+    assert message == ("steps: must be between 0 and 2147483647, got -1 (also params.n: must be > 0, got 0; "
+                       "params.radius: must be > 0, got 0)")
+    # an unknown key among them is named without its list of allowed keys; beyond NAMED_ERRORS, a count
+    message = config_error(overrides=["params.n=0", "params.nosie=1"])
+    assert message == "params.n: must be > 0, got 0 (also params.nosie: unknown key)"
+    message = config_error(overrides=["params.n=0", "params.radius=0", "params.speed=-1", "params.box=-1",
+                                      "params.nosie=1"])
+    assert message.endswith("; and 1 more)") and "\n" not in message
 
 
 def test_unknown_model() -> None:

@@ -431,11 +431,20 @@ def _set_dotted(raw: dict[str, Any], key: str, value: Any) -> None:
 # Error messages: one line, "<dotted.key>: <what is allowed>, got <value>".
 
 
+#: a config's errors named after the first in its one-line message; the rest are counted
+NAMED_ERRORS = 4
+
+
 def _error_text(error: ValidationError, model: Any) -> str:
-    """The first error as one line, with the count of the others."""
+    """The first error as one line, then the next few by key and problem (an unknown key's list of the allowed
+    ones given once, with the first), and a count of the rest: a file with two mistakes shows both."""
     errors = error.errors()
     text = _one_error_text(errors[0], model)
-    return text if len(errors) == 1 else f"{text} (and {len(errors) - 1} more)"
+    others = [_one_error_text(e, model).split("; allowed:")[0] for e in errors[1:NAMED_ERRORS]]
+    rest = len(errors) - 1 - len(others)
+    if others:
+        text += f" (also {'; '.join(others)}" + (f"; and {rest} more" if rest else "") + ")"
+    return text
 
 
 def _one_error_text(error: ErrorDetails, model: Any) -> str:
@@ -540,6 +549,11 @@ def _one_line(text: str) -> str:
 # Writing TOML.
 
 
+#: the header's example of an override, one of each model's own keys
+OVERRIDE_EXAMPLES = {"vicsek": "params.noise=0.3", "adaptive": "params.noise=0.3", "potential": "params.dt=0.005",
+                     "formation": "params.noise_deg=0.5"}
+
+
 def default_config_toml(model: str) -> str:
     """The default config of ``model`` as TOML, each key under a ``#`` comment saying what it is.
 
@@ -549,7 +563,7 @@ def default_config_toml(model: str) -> str:
         raise ConfigError(f"model: must be one of {', '.join(PARAMS_SCHEMAS)}, got {_value_text(model)}")
     header = [
         f"# tflock run config, model {model!r}: {MODEL_DESCRIPTIONS.get(model, '')}".rstrip(),
-        "# Override any key on the command line, e.g. --set params.noise=0.3",
+        f"# Override any key on the command line, e.g. --set {OVERRIDE_EXAMPLES[model]}",
         "",
     ]
     return "\n".join(header + _toml_lines(load_config(model=model), "", comments=True)) + "\n"
