@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -327,31 +328,39 @@ def test_arch_cuda_without_gpu_is_one_line(cuda_result: subprocess.CompletedProc
 # Ctrl-C and SIGTERM: exit 130 with a complete recording.
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_interrupt_exits_130_with_a_complete_recording(tmp_path: Path, sig: signal.Signals) -> None:
-    rrd = tmp_path / "long.rrd"
-    table = tmp_path / "long.metrics.csv"
+def metric_lines(table: Path) -> int:
+    """Lines of a metrics table so far (0 before it exists)."""
+    return table.read_text(encoding="utf-8").count("\n") if table.is_file() else 0
+
+
+def interrupted_sim(tmp_path: Path, args: list[str], sig: signal.Signals, running: Callable[[], bool]) -> int:
+    """`tflock sim SMALL --steps 10^6 ARGS` in a subprocess in `tmp_path` (its output in stdout.txt and stderr.txt
+    there), sent `sig` once `running()` holds; its exit code."""
     with open(tmp_path / "stdout.txt", "w") as stdout, open(tmp_path / "stderr.txt", "w") as stderr:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "tflock", "sim", *SMALL, "--steps", "1000000", "--out", rrd.name],
-            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr,
-        )
+        proc = subprocess.Popen([sys.executable, "-m", "tflock", "sim", *SMALL, "--steps", "1000000", *args],
+                                cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr)
         try:
             deadline = time.monotonic() + 60
-            while True:  # past 50 kB (frame 0) and at least two metric rows: the step loop is running
-                if rrd.is_file() and rrd.stat().st_size > 50_000 and table.is_file() and \
-                        table.read_text(encoding="utf-8").count("\n") >= 3:
-                    break
+            while not running():
                 assert proc.poll() is None, f"sim exited early with {proc.returncode}: " + \
                     (tmp_path / "stderr.txt").read_text()
-                assert time.monotonic() < deadline, "the recording did not grow past 50 kB within 60 s"
+                assert time.monotonic() < deadline, "the run was not under way within 60 s"
                 time.sleep(0.1)
             proc.send_signal(sig)
-            returncode = proc.wait(timeout=30)
+            return proc.wait(timeout=30)
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_interrupt_exits_130_with_a_complete_recording(tmp_path: Path, sig: signal.Signals) -> None:
+    rrd = tmp_path / "long.rrd"
+    table = tmp_path / "long.metrics.csv"
+    # past 50 kB (frame 0) and at least two metric rows: the step loop is running
+    returncode = interrupted_sim(tmp_path, ["--out", rrd.name], sig, lambda: rrd.is_file() and
+                                 rrd.stat().st_size > 50_000 and metric_lines(table) >= 3)
     out = (tmp_path / "stdout.txt").read_text()
     err = (tmp_path / "stderr.txt").read_text()
     assert returncode == 130, f"exit {returncode}\n{out}\n{err}"
@@ -365,6 +374,24 @@ def test_interrupt_exits_130_with_a_complete_recording(tmp_path: Path, sig: sign
     rows = csv_rows(table)
     assert len(rows) >= 1
     assert [int(row["step"]) for row in rows] == list(range(len(rows)))
+
+
+def test_interrupt_saves_a_checkpoint_of_the_step_it_stopped_at(tmp_path: Path) -> None:
+    """With checkpoints on, a run stopped between two steps saves the state it stopped at (not only the last
+    periodic checkpoint, here none: every 10^6 steps), says its step, and a resume continues from there."""
+    table = tmp_path / "long.metrics.csv"
+    returncode = interrupted_sim(tmp_path, ["--out", "long.rrd", "--checkpoint-every", "1000000"], signal.SIGINT,
+                                 lambda: metric_lines(table) >= 5)
+    out = (tmp_path / "stdout.txt").read_text()
+    assert returncode == 130, out + (tmp_path / "stderr.txt").read_text()
+    from tflock.simulation import read_checkpoint
+
+    saved = int(read_checkpoint(tmp_path / "long.checkpoint.npz", arrays=False)["step"])
+    last_row = int(csv_rows(table)[-1]["step"])
+    assert saved == last_row >= 3
+    assert re.search(rf"long\.checkpoint\.npz \(step {saved}\)", out), out
+    resumed = tflock("sim", "--resume", "long.checkpoint.npz", "--steps", str(saved + 2), "--no-log", cwd=tmp_path)
+    assert resumed.returncode == 0, describe(resumed)
 
 
 @pytest.mark.skipif(sys.version_info >= (3, 12), reason="the mark moved into CPython's runtime state in 3.12")

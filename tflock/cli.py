@@ -198,8 +198,13 @@ def sim(
                 first_step_s = time.perf_counter() - t0
                 t_loop = time.perf_counter()
                 simulation.run(tick)
-    except (_StopSignalError, KeyboardInterrupt):
+    except (_StopSignalError, KeyboardInterrupt) as stop_error:
         interrupted = True
+        if isinstance(stop_error, _StopSignalError):  # between two steps: the state is whole
+            try:
+                simulation.checkpoint_now()
+            except NumericalFaultError as e:
+                fail(str(e))
     except NumericalFaultError as e:  # the recording is closed and the last good state saved
         fail(str(e))
     finally:
@@ -254,7 +259,8 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     table.add_row("first step", f"{first_step_s:.2f} s (compile included)")
     table.add_row("wall time", f"{t_end - t_start:.2f} s")
     for path in simulation.files:
-        table.add_row("wrote", str(path))
+        step = simulation.checkpoint_steps.get(path)
+        table.add_row("wrote", str(path) + (f" (step {step})" if step is not None else ""))
     out.print(table)
     rrd = [p for p in simulation.files if p.suffix == ".rrd"]
     if rrd:

@@ -261,6 +261,7 @@ class Simulation:
         self._selected = drawn_subset(config.params.n, config.log.max_agents, config.seed)
         self._field_size = field_pixels(config.params.n, len(self._selected), config.log.field)
         self.files: list[Path] = []
+        self.checkpoint_steps: dict[Path, int] = {}  # the step of each checkpoint this run wrote, last write
         self.recording_id = uuid.uuid4().hex
         self.checkpoint_path = checkpoint
         self.checkpoint_every = checkpoint_every
@@ -471,6 +472,19 @@ class Simulation:
         """The last row of the metrics table (``step``, ``time`` and one value per metric), or None before any."""
         return self._table.last()
 
+    def checkpoint_now(self) -> Path | None:
+        """Where the run writes checkpoints (``checkpoint_every``): the current state, guarded, saved to its
+        checkpoint file unless that already holds this step (a multiple of ``checkpoint_every``). The CLI calls
+        it when a run is stopped between two steps (Ctrl-C, SIGTERM), so a resume continues from where it stopped,
+        not from the last periodic checkpoint. None without checkpoints. A fault found by the guard raises
+        :class:`NumericalFaultError` as a step would."""
+        if not (self.checkpoint_every and self.checkpoint_path):
+            return None
+        if self.model.step_index % self.checkpoint_every or self.model.step_index == 0:
+            self._guard(True)
+            self.save_checkpoint(self.checkpoint_path)
+        return self.checkpoint_path
+
     def save_checkpoint(self, path: str | Path) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
         atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it."""
@@ -489,6 +503,7 @@ class Simulation:
         os.replace(tmp, path)
         if path not in self.files:
             self.files.append(path)
+        self.checkpoint_steps[path] = self.model.step_index
         return path
 
     def _restore(self, checkpoint: Mapping[str, Any]) -> None:
