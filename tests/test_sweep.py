@@ -192,6 +192,29 @@ def test_resume_after_an_interruption_skips_finished_points(reference: pd.DataFr
     pd.testing.assert_frame_equal(again, table)  # wall times too: every row read back
 
 
+def test_cli_interruption_counts_the_points_on_disk(sweep_file: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stop message counts the points saved on disk: a point written just before the signal, whose progress
+    call had not come yet, counts (the progress bar's count once said 1 where 2 were saved)."""
+    from conftest import invoke_in
+
+    import tflock.sweep
+    from tflock.sweep import load_sweep
+    from tflock.sweep.table import point_path
+
+    def two_written_then_stopped(plan, *, out, progress, **_):
+        progress(0, len(plan.points))
+        for point in plan.points[:2]:  # written, the progress bar not told
+            path = point_path(Path(out) / "points", point)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tflock.sweep, "run_sweep", two_written_then_stopped)
+    result = invoke_in(sweep_file.parent, ["sweep", sweep_file.name, "--out", "out"])
+    assert result.exit_code == 130
+    assert f"interrupted: 2 of {len(load_sweep(sweep_file).points)} points saved" in result.output
+
+
 def test_a_changed_sweep_does_not_reuse_stale_points(reference: pd.DataFrame, sweep_file: Path) -> None:
     out = sweep_file.parent / "out"
     run_sweep(sweep_file, out=out)

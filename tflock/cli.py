@@ -543,6 +543,7 @@ def sweep(
 ) -> None:
     """Run a parameter sweep: every point of the grid x replicas, one table (Parquet and CSV); resumable."""
     from tflock.sweep import SweepError, default_out, load_sweep, run_sweep
+    from tflock.sweep.table import point_path
 
     t_start = time.perf_counter()
     if workers is not None and workers < 1:
@@ -555,21 +556,20 @@ def sweep(
         fail(str(e))
     folder = out_dir or default_out(plan.name)
     where = f"Dask at {scheduler}" if scheduler else f"{workers} local processes" if workers else "in-process"
-    done = 0
     try:
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=err, disable=not err.is_terminal) as progress:
             task = progress.add_task(f"sweep {plan.name} ({where})", total=len(plan.points))
 
             def tick(finished: int, total: int) -> None:
-                nonlocal done
-                done = finished
                 progress.update(task, completed=finished)
 
             table = run_sweep(plan, out=folder, workers=workers or 0, scheduler=scheduler, progress=tick)
     except (ConfigError, SweepError) as e:
         fail(str(e))
     except KeyboardInterrupt:
+        # counted on disk: a point written just before the signal may not have reached the progress bar yet
+        done = sum(point_path(folder / "points", point).is_file() for point in plan.points)
         err.print(f"interrupted: {done} of {len(plan.points)} points saved in {folder / 'points'}; "
                   "run the same command again to resume", highlight=False, soft_wrap=True)
         raise typer.Exit(130) from None
