@@ -97,7 +97,8 @@ def sim(
     out_path: Annotated[Path | None, typer.Option("--out", "-o", help="Recording file (.rrd).")] = None,
     spawn: Annotated[bool, typer.Option("--spawn", help="Stream to a new native viewer.")] = False,
     connect: Annotated[str | None, typer.Option(help="Stream to a viewer: rerun+http://host:9876/proxy.")] = None,
-    no_log: Annotated[bool, typer.Option("--no-log", help="Record nothing (metrics still printed).")] = False,
+    no_log: Annotated[bool, typer.Option(
+        "--no-log", help="Record nothing: no .rrd, no .metrics.csv (final metrics printed).")] = False,
     checkpoint_every: Annotated[int, typer.Option(help="Write a checkpoint every K steps (0 = never).")] = 0,
     checkpoint: Annotated[Path | None, typer.Option(help="Checkpoint file (default: beside the recording).")] = None,
     resume: Annotated[Path | None, typer.Option(help="Continue a run from its checkpoint (.npz).")] = None,
