@@ -75,6 +75,49 @@ def test_a_resumed_run_takes_no_change_but_steps_threads_and_log(make_sim, tmp_p
     assert resumed.step_index == 40
 
 
+def test_checkpoint_now_saves_the_step_unless_this_run_wrote_it(make_sim, tmp_path):
+    """What a stopped run saves (Simulation.checkpoint_now): the current step, unless the run itself wrote that
+    step to its checkpoint file; a resumed run at a multiple of its cadence has not (it once skipped the save by
+    arithmetic, and its file did not exist)."""
+    from tflock import Simulation
+    from tflock.simulation import read_checkpoint
+
+    first = make_sim(params={"n": 200, "box": 10.0}, steps=20)
+    first.step(10)
+    start = first.save_checkpoint(tmp_path / "a.npz")
+    resumed = Simulation(resume=start, steps=40, checkpoint=tmp_path / "b.npz", checkpoint_every=5)
+    assert resumed.checkpoint_now() == tmp_path / "b.npz"  # step 10, a multiple of 5, not yet in b.npz
+    assert int(read_checkpoint(tmp_path / "b.npz", arrays=False)["step"]) == 10
+    resumed.step(5)  # the run writes step 15 itself
+    stamp = (tmp_path / "b.npz").stat().st_mtime_ns
+    said = []
+    assert resumed.checkpoint_now(lambda path, step: said.append(step)) == tmp_path / "b.npz"
+    assert said == [] and (tmp_path / "b.npz").stat().st_mtime_ns == stamp  # not written again
+    resumed.step(2)
+    resumed.checkpoint_now(lambda path, step: said.append(step))
+    assert said == [17] and int(read_checkpoint(tmp_path / "b.npz", arrays=False)["step"]) == 17
+    assert Simulation(resume=start, steps=40).checkpoint_now() is None  # no checkpoints asked
+
+
+def test_an_interrupted_save_keeps_the_previous_checkpoint(make_sim, tmp_path, monkeypatch):
+    """A second Ctrl-C (or a full disk) while a checkpoint is written leaves the previous one and no .tmp."""
+    from tflock.simulation import read_checkpoint
+
+    sim = make_sim(params={"n": 200, "box": 10.0}, steps=20)
+    sim.step(3)
+    path = sim.save_checkpoint(tmp_path / "c.npz")
+    sim.step(2)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sim.save_checkpoint(path)
+    assert int(read_checkpoint(path, arrays=False)["step"]) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz"]
+
+
 def tflock(*args, cwd):
     return subprocess.run([sys.executable, "-m", "tflock", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=300)

@@ -317,9 +317,10 @@ def test_several_errors_report_the_first_and_name_the_rest() -> None:
     message = config_error(overrides=["params.n=0", "params.radius=0", "steps=-1"])
     assert message == ("steps: must be between 0 and 2147483647, got -1 (also params.n: must be > 0, got 0; "
                        "params.radius: must be > 0, got 0)")
-    # an unknown key among them is named without its list of allowed keys; beyond NAMED_ERRORS, a count
-    message = config_error(overrides=["params.n=0", "params.nosie=1"])
-    assert message == "params.n: must be > 0, got 0 (also params.nosie: unknown key)"
+    # an unknown key among them lists the allowed keys, once; beyond NAMED_ERRORS, a count
+    message = config_error(overrides=["params.n=0", "params.nosie=1", "params.nouse=1"])
+    assert message.startswith("params.n: must be > 0, got 0 (also params.nosie: unknown key; allowed: ")
+    assert message.count("allowed") == 1 and message.endswith("; params.nouse: unknown key)")
     message = config_error(overrides=["params.n=0", "params.radius=0", "params.speed=-1", "params.box=-1",
                                       "params.nosie=1"])
     assert message.endswith("; and 1 more)") and "\n" not in message

@@ -79,12 +79,12 @@ def test_binning_matches_reference(engine, dim: int, mode: int, chunks: bool) ->
 def test_rolled_box_matches_reference_of_wrapped_positions(engine, chunks: bool) -> None:
     """A periodic box drawn from another corner (`rolled`, as formation draws its torus centred on the VA): the
     field of wrap(x - corner), with origin 0, whether the corner lies below the box's own (x - corner beyond the
-    box wraps down) or inside it (below it wraps up); the grid of the model is not used."""
+    box wraps down), inside it (below it wraps up) or more than a side away; the grid of the model is not used."""
     rng = np.random.default_rng(8)
     n, box, size = 5000, 16.0, 32
     pos = clustered_positions(rng, n, 2, box)
     d = quantised_directions(rng, n, 2)
-    for corner in (np.array([-5.5, 3.0]), np.array([7.25, -0.5])):  # dyadic: exact in float32
+    for corner in (np.array([-5.5, 3.0]), np.array([7.25, -0.5]), np.array([21.25, -40.0])):  # dyadic: exact
         field = Field(n, 2, size)
         field._on_cpu = chunks
         (im,) = field.compute(upload(pos.T), upload(d.T), box=box, bounded=True, mode=VECTORS, rolled=corner)

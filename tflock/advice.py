@@ -82,7 +82,7 @@ def mistakes(config: Config, *, checkpoint_every: int = 0, start_step: int = 0, 
                    "update at all in this run")
     if checkpoint_every and config.steps // checkpoint_every == start_step // checkpoint_every:
         out.append(f"--checkpoint-every (= {checkpoint_every}): no multiple of it lies between step {start_step} and "
-                   f"the last step ({config.steps}), so no checkpoint will be written")
+                   f"the last step ({config.steps}), so only a stop (Ctrl-C, SIGTERM) writes a checkpoint")
     large = None if recording is None else _large_recording(config, recording, drawn, field, start_step)
     if large is not None:
         out.append(large)

@@ -202,12 +202,11 @@ def sim(
     except (_StopSignalError, KeyboardInterrupt) as stop_error:
         interrupted = True
         if isinstance(stop_error, _StopSignalError):  # between two steps: the state is whole
-            try:
-                simulation.checkpoint_now()
-            except NumericalFaultError as e:
-                fail(str(e))
+            _save_at_stop(simulation)
     except NumericalFaultError as e:  # the recording is closed and the last good state saved
         fail(str(e))
+    except OSError as e:  # a checkpoint or the metrics table that cannot be written (a full disk, ...)
+        fail(f"cannot write {e.filename or 'an output'}: {e.strerror or e}")
     finally:
         simulation.close()
         gc.unfreeze()  # frozen objects are never finalized: Taichi would not write its kernel cache at exit
@@ -215,6 +214,24 @@ def sim(
     _summary(simulation, t_start, t_ready, first_step_s, t_loop, t_end, interrupted)
     if interrupted:
         raise typer.Exit(130)
+
+
+def _save_at_stop(simulation) -> None:
+    """A run stopped between two steps: its state saved to its checkpoint file (with checkpoints on), said first,
+    as the save may take seconds; a second Ctrl-C skips it (the previous checkpoint stays)."""
+    from tflock.simulation import NumericalFaultError
+
+    def announce(path: Path, step: int) -> None:
+        err.print(f"saving step {step} to {path} (Ctrl-C again to skip)", highlight=False)
+
+    try:
+        simulation.checkpoint_now(announce)
+    except KeyboardInterrupt:
+        err.print("checkpoint skipped: the previous one stays", highlight=False)
+    except NumericalFaultError as e:
+        fail(str(e))
+    except OSError as e:
+        fail(f"cannot write {e.filename or 'the checkpoint'}: {e.strerror or e}")
 
 
 class _StopSignalError(Exception):

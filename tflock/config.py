@@ -431,17 +431,20 @@ def _set_dotted(raw: dict[str, Any], key: str, value: Any) -> None:
 # Error messages: one line, "<dotted.key>: <what is allowed>, got <value>".
 
 
-#: a config's errors named after the first in its one-line message; the rest are counted
+#: a config's errors named in its one-line message, the first included; the rest are counted
 NAMED_ERRORS = 4
 
 
 def _error_text(error: ValidationError, model: Any) -> str:
-    """The first error as one line, then the next few by key and problem (an unknown key's list of the allowed
-    ones given once, with the first), and a count of the rest: a file with two mistakes shows both."""
+    """The first error as one line, then the next few by key and problem, and a count of the rest: a file with two
+    mistakes shows both. The allowed keys are listed once, with the first unknown key."""
     errors = error.errors()
     text = _one_error_text(errors[0], model)
-    others = [_one_error_text(e, model).split("; allowed:")[0] for e in errors[1:NAMED_ERRORS]]
-    rest = len(errors) - 1 - len(others)
+    others = []
+    for e in errors[1:NAMED_ERRORS]:
+        other = _one_error_text(e, model)
+        others.append(other.split("; allowed:")[0] if "; allowed:" in text + "".join(others) else other)
+    rest = len(errors) - len(others) - 1
     if others:
         text += f" (also {'; '.join(others)}" + (f"; and {rest} more" if rest else "") + ")"
     return text

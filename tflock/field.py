@@ -137,8 +137,8 @@ def _direction(dirs: ti.template(), e, a: ti.template(), b: ti.template(), row, 
 @ti.func
 def _pixel_index(x, lo, inv, size, wrap: ti.template()):
     """Pixel of coordinate x (scalar or vector) in a window of `size` pixels of side 1 / inv from `lo`: clamped to
-    the window, or with `wrap` (the window is a periodic box's side, x in the box and lo within a side of it: x - lo
-    lies within a side and a half of the window) wrapped into it."""
+    the window, or with `wrap` (the window is a periodic box's side, x and lo in the box: x - lo lies within a side
+    of the window) wrapped into it."""
     i = ti.cast(ti.floor((x - lo) * inv), ti.i32)
     if ti.static(wrap):
         i = ti.select(i < 0, i + size, ti.select(i >= size, i - size, i))
@@ -367,10 +367,11 @@ class Field:
         """The field of the agents at `pos` (component-major (dim, n)) with directions `dirs` in the same order
         (:data:`VECTORS` or :data:`UNIT_VECTORS` (dim, n), :data:`ANGLES` (n,), or row `row` of a (rows, n) array
         with :data:`ANGLE_ROW`). `grid`: the model's :class:`~tflock.neighbors.CellGrid`, built for these positions.
-        `rolled`: a periodic box drawn from this corner (a point of the box) instead of from 0, as a frame whose
-        positions are wrap(x - rolled) draws it: each agent is binned there, and the images keep origin 0."""
-        if rolled is not None:
-            return self._from_agents(pos, dirs, np.asarray(rolled, np.float64), float(box), mode, row, wrap=True)
+        `rolled`: a periodic box drawn from this corner (any point) instead of from 0, as a frame whose positions
+        are wrap(x - rolled) draws it: each agent is binned there, and the images keep origin 0."""
+        if rolled is not None:  # the corner taken into the box: x - corner then lies within a side of it
+            corner = np.mod(np.asarray(rolled, np.float64), float(box))
+            return self._from_agents(pos, dirs, corner, float(box), mode, row, wrap=True)
         if grid is not None and cell_layout(grid):
             return self._from_cells(grid, dirs, mode, row)
         if bounded:

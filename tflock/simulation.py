@@ -472,18 +472,21 @@ class Simulation:
         """The last row of the metrics table (``step``, ``time`` and one value per metric), or None before any."""
         return self._table.last()
 
-    def checkpoint_now(self) -> Path | None:
+    def checkpoint_now(self, announce: Callable[[Path, int], None] | None = None) -> Path | None:
         """Where the run writes checkpoints (``checkpoint_every``): the current state, guarded, saved to its
-        checkpoint file unless that already holds this step (a multiple of ``checkpoint_every``). The CLI calls
-        it when a run is stopped between two steps (Ctrl-C, SIGTERM), so a resume continues from where it stopped,
-        not from the last periodic checkpoint. None without checkpoints. A fault found by the guard raises
-        :class:`NumericalFaultError` as a step would."""
-        if not (self.checkpoint_every and self.checkpoint_path):
+        checkpoint file unless this run already wrote this step there; `announce(path, step)` is called before
+        the save. The CLI calls it when a run is stopped between two steps (Ctrl-C, SIGTERM), so a resume
+        continues from where it stopped, not from the last periodic checkpoint. None without checkpoints. A fault
+        found by the guard raises :class:`NumericalFaultError` as a step would."""
+        path = self.checkpoint_path
+        if not (self.checkpoint_every and path):
             return None
-        if self.model.step_index % self.checkpoint_every or self.model.step_index == 0:
+        if self.checkpoint_steps.get(path) != self.model.step_index:
             self._guard(True)
-            self.save_checkpoint(self.checkpoint_path)
-        return self.checkpoint_path
+            if announce is not None:
+                announce(path, self.model.step_index)
+            self.save_checkpoint(path)
+        return path
 
     def save_checkpoint(self, path: str | Path) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
@@ -496,11 +499,15 @@ class Simulation:
         if self._lyapunov_start is not None:
             arrays["lyapunov_start"] = np.array([str(v) for v in self._lyapunov_start])
         tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays, step=np.int64(self.model.step_index),
-                     config_toml=np.str_(config_to_toml(self.config)), recording_id=np.str_(self.recording_id),
-                     format=np.int64(CHECKPOINT_FORMAT))
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays, step=np.int64(self.model.step_index),
+                         config_toml=np.str_(config_to_toml(self.config)), recording_id=np.str_(self.recording_id),
+                         format=np.int64(CHECKPOINT_FORMAT))
+            os.replace(tmp, path)
+        except BaseException:  # a full disk, a second Ctrl-C: the previous checkpoint stays, and no stray .tmp
+            tmp.unlink(missing_ok=True)
+            raise
         if path not in self.files:
             self.files.append(path)
         self.checkpoint_steps[path] = self.model.step_index
