@@ -69,3 +69,35 @@ def test_fig6_speed_coefficient_and_order_fall_with_noise(table):
     assert abs(frozen.phi_theta - math.sin(2.5) / 2.5) < 0.05  # |E exp(i xi)| for xi ~ U[-eta, eta] (eq. 12)
     vicsek = data[data.alpha == 0].sort_values("noise")
     assert vicsek.phi_theta.iloc[0] > 0.5 > 0.2 > vicsek.phi_theta.iloc[-1]  # alpha = 0: noise destroys the order
+
+
+def _noise_sweep(curves: dict[float, list[float]], etas: list[float], replicas: int = 40) -> pd.DataFrame:
+    """Per-realisation rows of the Fig. 6 sweep: Phi_theta = curve value + each seed's own offset (shared by the
+    alphas, as one seed is one initial state) + a little independent noise."""
+    rng = np.random.default_rng(3)
+    offsets = rng.normal(0, 0.02, replicas)
+    rows = [{"params.alpha": alpha, "params.noise": eta, "seed": seed,
+             "mean_phi_theta": value + offsets[seed] + rng.normal(0, 0.001)}
+            for alpha, values in curves.items() for eta, value in zip(etas, values, strict=True)
+            for seed in range(replicas)]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize(("bend", "expected"), [(0.0, True), (0.05, False)])
+def test_fig6_one_straight_line_is_judged_by_the_spread(bend, expected):
+    """The two largest alphas are one curve where the 95 % interval of their paired difference lies within
+    +-ONE_CURVE (here from eta = 2; at 1.75 they differ by 0.06: outside, although a comparison of the means with a
+    tolerance of 0.06 would pass), and a straight one where a line through the means lies within their intervals
+    (a bend of 0.05 at one eta, shared by both curves, is far outside them)."""
+    from tflock.reproduce.experiment import Results
+    from tflock.reproduce.liwang import NOISE, ONE_CURVE, LiWang, _with_interval
+
+    etas = [1.75, 2.0, 2.25, 2.5]
+    line = [0.9 - 0.3 * e for e in etas]
+    line[2] += bend
+    sweep = _noise_sweep({4.0: [line[0] + ONE_CURVE + 0.01, *line[1:]], 16.0: line}, etas)
+    data = pd.DataFrame([{"alpha": alpha, "noise": eta, **_with_interval("phi_theta", group["mean_phi_theta"])}
+                         for (alpha, eta), group in sweep.groupby(["params.alpha", "params.noise"])])
+    (text, ok), = LiWang._one_line(data, Results(sweeps={NOISE: sweep}), [4.0, 16.0], etas).items()
+    assert ok is expected
+    assert "at the 3 largest eta (from 2:" in text and "not at eta = 1.75" in text

@@ -245,6 +245,11 @@ class Formation(Experiment):
         return Estimate(row[f"{q}_mean"], row[f"{q}_lo"], row[f"{q}_hi"], n)
 
     @staticmethod
+    def _reached(row: pd.Series) -> Estimate:
+        """A summary row's fraction of runs that reach the DF, with its Wilson interval."""
+        return Estimate(row["converged_fraction"], row["converged_lo"], row["converged_hi"], int(row["replicas"]))
+
+    @staticmethod
     def _extremes(grid: pd.DataFrame) -> dict[tuple[str, str], pd.Series]:
         """Fig. 4's selection on our grid: among the configurations that reach the DF in every replica, the one
         with the smallest and the largest mean of each quantifier."""
@@ -366,9 +371,8 @@ class Formation(Experiment):
                            f"{r[f'{q}_min']:.{digits[q]}f} to {r[f'{q}_max']:.{digits[q]}f} (as one run's value, the "
                            f"paper's number lies {'within' if in_range else 'outside'} that range)",
                            mine.holds(r["paper_value"])))
-            reached = proportion_ci(int(round(r["converged_fraction"] * r["replicas"])), int(r["replicas"]))
             lines.append(f"| ({r['figure']}) | {r['strategy']} | {w} | {q} = {r['paper_value']:g} | "
-                         f"{reached.short(2)} of {r['replicas']} | "
+                         f"{self._reached(r).short(2)} of {r['replicas']} | "
                          + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
         converged, total = int(round((paper["converged_fraction"] * paper["replicas"]).sum())), paper["replicas"].sum()
         checks.append((f"the six configurations reach the DF in every run (the paper selected them so): "
@@ -416,6 +420,12 @@ class Formation(Experiment):
         # Fig. 7: tau over p (the runs of all deltas pooled) and over delta
         raw7 = sweeps["formation-fig7"]
         by_p = {p: mean_ci(g["final_tau"].to_numpy()) for p, g in raw7.groupby("params.fail_prob")}
+        none_at = {p for p, g in raw7.groupby("params.fail_prob") if (g["final_tau"] >= cap).all()}
+
+        def tau_at(p: float) -> str:  # tau over p's runs, or that none of them reached the DF (no interval then)
+            runs = int((raw7["params.fail_prob"] == p).sum())
+            return f"none of {runs} runs reached the DF by {cap} tu" if p in none_at else by_p[p].text(0, "tu")
+
         p_values = sorted(by_p)
         low_p = [p for p in p_values if p <= 0.8]
         below_cap = all(by_p[p].hi < 0.9 * cap for p in low_p)  # "increasing smoothly": no jump to the cap yet
@@ -424,15 +434,14 @@ class Formation(Experiment):
         jump = 0.9 in by_p and by_p[0.9].lo >= 0.9 * cap and below_cap
         checks.append((f"Fig. 7: tau rises smoothly with p up to 0.8, 'increasing smoothly for p in [0, 0.8]' (our "
                        f"bar: the whole interval below 90 % of the cap, {0.9 * cap:g} tu, at every p up to 0.8; "
-                       f"p = {low_p[0]:g}: "
-                       f"{by_p[low_p[0]].text(0, 'tu')}"
-                       + (f"; p = {low_p[-1]:g}: {by_p[low_p[-1]].text(0, 'tu')}" if len(low_p) > 1 else
+                       f"p = {low_p[0]:g}: {tau_at(low_p[0])}"
+                       + (f"; p = {low_p[-1]:g}: {tau_at(low_p[-1])}" if len(low_p) > 1 else
                           "; no other p at most 0.8 was run")
                        + (f"; an interval reaching {0.9 * cap:g} tu already at p = "
                           f"{', '.join(f'{p:g}' for p in capped)}" if capped else "")
                        + "; the runs of every delta pooled)", bool(rises)))
         if 0.9 in by_p:
-            checks.append((f"Fig. 7: tau jumps near the cap only at p = 0.9 ({by_p[0.9].text(0, 'tu')}; the cap "
+            checks.append((f"Fig. 7: tau jumps near the cap only at p = 0.9 ({tau_at(0.9)}; the cap "
                            f"{cap} where the DF is not reached)", bool(jump)))
         table7 = fig7.pivot_table(index="fail_prob", columns="noise_deg", values="tau_mean")
         none_by = f"none by {cap}"  # a cell whose runs all stop at the cap: tau is not reached (no interval)
@@ -444,9 +453,7 @@ class Formation(Experiment):
             for d in deltas:
                 row = fig7[(fig7["fail_prob"] == p) & (fig7["noise_deg"] == d)].iloc[0]
                 cells.append(none_by if row["converged_fraction"] == 0 else self._estimate(row, "tau").short(0))
-            pooled = none_by if (raw7.loc[raw7["params.fail_prob"] == p, "final_tau"] >= cap).all() else \
-                by_p[p].short(0)
-            lines7.append(f"| {p:g} | " + " | ".join(cells) + f" | {pooled} |")
+            lines7.append(f"| {p:g} | " + " | ".join(cells) + f" | {none_by if p in none_at else by_p[p].short(0)} |")
 
         # the noise claim: paired runs at p = 0
         raw = sweeps["formation-noise"]
@@ -483,8 +490,7 @@ class Formation(Experiment):
         lines_r = [f"| Fig. 4e ({e['strategy']}; {weights_text(e)}) | reach the DF | tau (tu) | phi | rho (bl) |",
                    "|---|---|---|---|---|"]
         for label, r in variants:
-            reached = proportion_ci(int(round(r["converged_fraction"] * r["replicas"])), int(r["replicas"]))
-            lines_r.append(f"| {label} | {reached.short(2)} of {r['replicas']} | "
+            lines_r.append(f"| {label} | {self._reached(r).short(2)} of {r['replicas']} | "
                            + " | ".join(self._estimate(r, k).short(digits[k]) for k in ("tau", "phi", "rho")) + " |")
         rho_all = mean_ci(paper["rho_mean"].to_numpy())
 

@@ -36,7 +36,7 @@ THETA0_DEG = 60.0
 G = N + 1.0  # eq. (18): any g > n
 TOL = 0.01  # rad: "agreed" / "followed"
 FROZEN = 1e-6  # rad per step: headings move by f32 rounding only (a few ulp of ~pi)
-FLOOR = 1e-7  # f32 resolution of a heading near 2 pi; log plots are clipped there
+FLOOR = 1e-7  # below float32's spacing of a heading (2.4e-7 near pi, 4.8e-7 near 2 pi); log plots are clipped there
 
 
 def expected_neighbours(radius: float) -> float:
@@ -134,7 +134,8 @@ class Jadbabaie(Experiment):
             ax.set_xlabel("step")
             ax.legend(fontsize=7)
         figure.suptitle(f"n = {N}, density 1, v0 = {SPEED}, no noise; seed 0 (grey: tolerance {TOL} rad)\nvalues "
-                        f"below {FLOOR:g} rad, the f32 resolution of a heading, drawn at {FLOOR:g}", fontsize=10)
+                        f"below {FLOOR:g} rad (finer than float32 resolves a heading near pi) drawn at {FLOOR:g}",
+                        fontsize=10)
         figure.tight_layout()
         return figure
 

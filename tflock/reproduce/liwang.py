@@ -73,6 +73,9 @@ def _half_width(data: pd.DataFrame, column: str) -> float:
     return float(((data[f"{column}_hi"] - data[f"{column}_lo"]) / 2).max())
 
 
+#: Fig. 6's "same straight line": two Phi_theta curves are one where their paired difference's 95 % interval lies
+#: within +- this (5 % of Phi_theta's range, a difference a reader of the paper's figure could not see)
+ONE_CURVE = 0.05
 #: the figures' error bars, said on each (the text's intervals are 95 % ones)
 ERROR_BARS = "error bars: +-1 standard error over the realisations"
 
@@ -357,7 +360,7 @@ class LiWang(Experiment):
 
     def _comparison(self, table: pd.DataFrame, fits: pd.DataFrame, results: Results) -> str:
         sections = [self._compare_convergence(table), self._compare_tau(table, fits, results),
-                    self._compare_noise(table)]
+                    self._compare_noise(table, results)]
         return "\n\n".join(section for section in sections if section)
 
     def _compare_convergence(self, table: pd.DataFrame) -> str:
@@ -534,7 +537,7 @@ class LiWang(Experiment):
             *(["", *notes] if notes else []),
         ])
 
-    def _compare_noise(self, table: pd.DataFrame) -> str:
+    def _compare_noise(self, table: pd.DataFrame, results: Results) -> str:
         data = table[table.figure == "6"]
         if data.empty:
             return ""
@@ -568,21 +571,7 @@ class LiWang(Experiment):
         }
         large = sorted(positive.alpha.unique())[-2:]
         if len(large) == 2 and len(etas) > 2:
-            curves = [data[data.alpha == a].sort_values("noise").phi_theta.to_numpy() for a in large]
-            agree = abs(curves[0] - curves[1]) <= 0.05
-            shared = len(agree) if agree.all() else int(np.argmin(agree[::-1]))  # trailing etas where they agree
-            tail = np.array(etas[len(etas) - shared:])
-            if shared >= 2:
-                slope, intercept = np.polyfit(tail, curves[1][-shared:], 1)
-                residual = float(np.max(abs(np.polyval([slope, intercept], tail) - curves[1][-shared:])))
-                frozen = float(np.max(abs(curves[1][-shared:] - np.sin(tail) / tail)))
-                line = (f"Phi_theta = {intercept:.2f} {slope:+.2f} eta fits within {residual:.3f}; it is within "
-                        f"{frozen:.3f} of sin(eta) / eta there")
-            else:
-                residual, line = math.inf, "no shared range"
-            checks[f"for large eta the two largest alphas ({', '.join(_alpha_label(a) for a in large)}) fall along "
-                   f"one straight line: they agree within 0.05 for the {shared} largest eta (from "
-                   f"{tail[0] if shared else math.nan:g}); {line}"] = shared >= 3 and residual <= 0.03
+            checks.update(self._one_line(data, results, large, etas))
         notes = [
             "Our reading: with large alpha and noise the speeds phi^alpha vanish, the swarm freezes as one cluster "
             "(S ~ 1: the third number of each cell, and panel c) whose members all see nearly the whole group, so "
@@ -612,6 +601,51 @@ class LiWang(Experiment):
             "",
             *notes,
         ])
+
+    @staticmethod
+    def _one_line(data: pd.DataFrame, results: Results, large: list[float], etas: list[float]) -> dict[str, bool]:
+        """The claim that for large eta the two largest alphas' Phi_theta fall along one straight line. The paper
+        reads it off a figure and gives no number, so "one curve" is a test of equivalence: at each eta, the 95 %
+        interval of the paired difference of the realisations' Phi_theta (the same seed, so the same initial state,
+        at both alphas) lies wholly within +-ONE_CURVE (a difference a reader of the figure could not see); the
+        curve is "straight" where the least-squares line through the larger alpha's means over the largest etas at
+        which the curves are one lies within each of those means' 95 % intervals. Needs three such etas (two points
+        are always on a line). The text also says where the paired intervals exclude 0 (differences the
+        realisations resolve although the figure could not show them)."""
+        frame = results.sweeps[NOISE].assign(alpha=results.sweeps[NOISE]["params.alpha"].astype(float))
+        differences = []
+        for eta in etas:
+            at = frame[frame["params.noise"] == eta]
+            a, b = (at[at.alpha == alpha].set_index("seed")["mean_phi_theta"] for alpha in large)
+            both = pd.concat([a, b], axis=1, keys=["a", "b"]).dropna()
+            differences.append(paired_difference_ci(both["a"], both["b"]))  # the larger alpha's less the smaller's
+        one = [-ONE_CURVE <= d.lo and d.hi <= ONE_CURVE for d in differences]
+        shared = len(one) if all(one) else one[::-1].index(False)  # the largest etas where the curves are one
+        tail = np.array(etas[len(etas) - shared:])
+        curve = data[data.alpha == large[1]].sort_values("noise").tail(shared)
+        names = ", ".join(_alpha_label(a) for a in large)
+        resolved = sum(not d.holds(0.0) for d in differences[len(etas) - shared:])
+        text = (f"for large eta the two largest alphas ({names}) fall along one straight line: the 95 % interval of "
+                f"the paired difference in Phi_theta (alpha = {_alpha_label(large[1])} less alpha = "
+                f"{_alpha_label(large[0])}) lies within +-{ONE_CURVE:g} at the {shared} largest eta"
+                + (f" (from {tail[0]:g}: "
+                   + ", ".join(d.short(4) for d in differences[len(etas) - shared:])
+                   + f"; {resolved} of them exclude 0)" if shared else ""))
+        if shared < len(etas):
+            text += f", not at eta = {etas[len(etas) - shared - 1]:g} ({differences[len(etas) - shared - 1].short(3)})"
+        straight = False
+        if shared >= 3:
+            slope, intercept = np.polyfit(tail, curve.phi_theta.to_numpy(), 1)
+            miss = np.abs(np.polyval([slope, intercept], tail) - curve.phi_theta.to_numpy())
+            half = ((curve.phi_theta_hi - curve.phi_theta_lo) / 2).to_numpy()
+            straight = bool((miss <= half).all())
+            frozen = float(np.max(np.abs(curve.phi_theta.to_numpy() - np.sin(tail) / tail)))
+            text += (f"; the line Phi_theta = {intercept:.2f} {slope:+.2f} eta through the larger alpha's means "
+                     f"misses them by at most {miss.max():.4f}, against half-intervals of {half.min():.4f} to "
+                     f"{half.max():.4f}; the means are within {frozen:.3f} of sin(eta) / eta there")
+        elif shared:
+            text += " (too few for a straight line to be tested)"
+        return {text: shared >= 3 and straight}
 
     @staticmethod
     def _checks(checks: dict[str, bool]) -> list[str]:
