@@ -608,7 +608,7 @@ def sweep(
 @app.command()
 def reproduce(
     name: Annotated[str | None, typer.Argument(help="Experiment (omit, or --list, to list them).")] = None,
-    quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (minutes at most; what CI runs).")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="Reduced sizes (seconds; what CI runs).")] = False,
     out_dir: Annotated[Path | None, typer.Option("--out", "-o",
                                                  help="Output folder \\[default: results/NAME].")] = None,
     workers: Annotated[int | None, typer.Option(help="Run sweep points on N local processes (Dask).")] = None,
