@@ -46,6 +46,14 @@ def assert_batch_matches_lone_runs(cfg, engine, steps=12, **model_args):
             np.testing.assert_allclose(per_replica[name][r], value, rtol=METRIC_RTOL, atol=1e-12, err_msg=name)
 
 
+def test_vicsek_batch_beyond_4096_agents_names_its_exact_pair_errors_as_the_lone_run(engine):
+    """Replicas of 2000 agents, 6000 in the batch: each replica's e_d and e_theta are exact (EXACT_PAIRS_MAX counts
+    a replica's agents) and named as the lone run names them, not e_d_est (a sweep's table once split one metric
+    across two columns by the replica count)."""
+    cfg = config("vicsek", n=2000, box=31.6, noise=0.5)
+    assert_batch_matches_lone_runs(cfg, engine, steps=2)
+
+
 @pytest.mark.parametrize("boundary", ["periodic", "reflecting", "open"])
 @pytest.mark.parametrize("rule", ["vector", "relative"])
 def test_vicsek_batch_equals_lone_runs(engine, boundary, rule):

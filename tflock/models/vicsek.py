@@ -860,7 +860,7 @@ class Vicsek(GridModel):
         self.replicas = replicas
         n, real = params.n * replicas, engine.real
         self.n_total = n
-        exact = n <= EXACT_PAIRS_MAX
+        exact = params.n <= EXACT_PAIRS_MAX  # a batch's pair errors are exact per replica (can_batch)
         estimate = "" if exact else f" (estimate from {SAMPLED_PAIRS} sampled pairs)"
         self._pair_names = ("e_d", "e_theta") if exact else ("e_d_est", "e_theta_est")
         self.metric_descriptions = {
