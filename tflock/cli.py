@@ -206,7 +206,7 @@ def sim(
     except NumericalFaultError as e:  # the recording is closed and the last good state saved
         fail(str(e))
     except OSError as e:  # a checkpoint or the metrics table that cannot be written (a full disk, ...)
-        fail(f"cannot write {e.filename or 'an output'}: {e.strerror or e}")
+        fail(_cannot_write(e))
     finally:
         simulation.close()
         gc.unfreeze()  # frozen objects are never finalized: Taichi would not write its kernel cache at exit
@@ -231,7 +231,12 @@ def _save_at_stop(simulation) -> None:
     except NumericalFaultError as e:
         fail(str(e))
     except OSError as e:
-        fail(f"cannot write {e.filename or 'the checkpoint'}: {e.strerror or e}")
+        fail(_cannot_write(e))
+
+
+def _cannot_write(error: OSError) -> str:
+    """A run's output that could not be written, as one line."""
+    return f"cannot write {error.filename or 'an output'}: {error.strerror or error}"
 
 
 class _StopSignalError(Exception):

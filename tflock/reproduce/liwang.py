@@ -94,15 +94,20 @@ def _tau_runs(results: Results) -> dict[tuple[int, float, float, float], pd.Seri
     return runs
 
 
+def _paired_by_seed(first: pd.DataFrame, second: pd.DataFrame, column: str) -> Estimate:
+    """Mean of `column` in `second` less in `first` over the seeds (the same initial state) that have a value in
+    both, with its t interval."""
+    both = pd.concat([frame.set_index("seed")[column] for frame in (first, second)], axis=1,
+                     keys=["a", "b"]).dropna()
+    return paired_difference_ci(both["a"], both["b"])
+
+
 def _tau_pairs(results: Results, alpha: float, v0: tuple[float, float]) -> Estimate:
     """Mean tau at the second speed less that at the first (N = 300, R = 2, Fig. 5a), over the realisations that
     reached it at both, paired by seed (the same initial state)."""
     frame = results.sweeps[TAU_SPEED]
     frame = frame[(frame["params.alpha"].astype(float) == alpha) & (frame["params.n"] == N)]
-    a = frame[frame["params.speed"] == v0[0]].set_index("seed")["final_tau"]
-    b = frame[frame["params.speed"] == v0[1]].set_index("seed")["final_tau"]
-    both = pd.concat([a, b], axis=1, keys=["a", "b"]).dropna()
-    return paired_difference_ci(both["a"], both["b"])
+    return _paired_by_seed(frame[frame["params.speed"] == v0[0]], frame[frame["params.speed"] == v0[1]], "final_tau")
 
 
 class LiWang(Experiment):
@@ -613,12 +618,10 @@ class LiWang(Experiment):
         are always on a line). The text also says where the paired intervals exclude 0 (differences the
         realisations resolve although the figure could not show them)."""
         frame = results.sweeps[NOISE].assign(alpha=results.sweeps[NOISE]["params.alpha"].astype(float))
-        differences = []
+        differences = []  # the larger alpha's less the smaller's, at each eta
         for eta in etas:
             at = frame[frame["params.noise"] == eta]
-            a, b = (at[at.alpha == alpha].set_index("seed")["mean_phi_theta"] for alpha in large)
-            both = pd.concat([a, b], axis=1, keys=["a", "b"]).dropna()
-            differences.append(paired_difference_ci(both["a"], both["b"]))  # the larger alpha's less the smaller's
+            differences.append(_paired_by_seed(at[at.alpha == large[0]], at[at.alpha == large[1]], "mean_phi_theta"))
         one = [-ONE_CURVE <= d.lo and d.hi <= ONE_CURVE for d in differences]
         shared = len(one) if all(one) else one[::-1].index(False)  # the largest etas where the curves are one
         tail = np.array(etas[len(etas) - shared:])
