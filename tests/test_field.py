@@ -156,6 +156,31 @@ def test_from_cells_matches_reference(engine, dim: int, boundary: str, box: floa
         np.testing.assert_array_equal(im.classes, classes[p])
 
 
+@pytest.mark.parametrize("cells", [False, True], ids=["binned", "cells"])
+def test_3d_projections_take_the_agents_hue(engine, cells: bool) -> None:
+    """A polarised 3D flock heading up and to +y at 30 degrees of azimuth: every projection's pixels carry the hue of
+    that azimuth, as the agents are coloured (tflock.frame.heading_colors), not the direction within the plane (xz:
+    atan2(0.8, 0.52) = 57 degrees; yz: 66 degrees)."""
+    rng = np.random.default_rng(5)
+    n, box, size = 4000, 8.0, 4
+    pos = (rng.random((n, 3)) * box).astype(np.float32)
+    heading = np.array([0.6 * math.cos(math.pi / 6), 0.6 * math.sin(math.pi / 6), 0.8], np.float32)
+    d = np.tile(heading, (n, 1))
+    grid = None
+    if cells:
+        grid = CellGrid(n, 3, "periodic", box, 1.0, engine.real)
+        grid.build(upload(pos.T, grid.pos_sorted.dtype), upload(np.arange(n, dtype=np.int32), ti.i32))
+    images = Field(n, 3, size).compute(upload(pos.T), upload(d.T, ti.f32 if grid is None else grid.pos_sorted.dtype),
+                                       box=box, bounded=True, grid=grid, mode=VECTORS)
+    assert [im.plane for im in images] == ["xy", "xz", "yz"]
+    hue = round(30 / (360 / HUES))
+    for im in images:
+        filled = im.classes[im.classes > 0].astype(int)
+        assert filled.size > 0
+        assert set(((filled - 1) // 2 // DENSITY_LEVELS).tolist()) == {hue}, im.plane
+        assert np.all((filled - 1) % 2 == 1)  # ordered
+
+
 def test_classes_and_default_size() -> None:
     colors = class_colors()
     assert colors.shape == (CLASSES, 4) and CLASSES <= 256  # fits a uint8 image

@@ -186,13 +186,18 @@ def test_a_recording_carries_the_band_profile(cpu_engine, tmp_path):
     summary = read_recording(path)
     assert "/profiles/band_profile" in summary.entities
     assert {"band_peaks", "band_contrast", "gnf_exponent", "gnf_std_4"} <= set(summary.final_metrics)
-    charts = []
+    charts, positions = [], []
     for chunk in RrdReader(path).stream():
         if chunk.entity_path == "/profiles/band_profile" and chunk.num_rows:
             batch = chunk.to_record_batch()
-            charts += [np.asarray(v[0]["buffer"]) for v in batch.column("BarChart:values").to_pylist() if v]
+            if "BarChart:values" in batch.schema.names:
+                charts += [np.asarray(v[0]["buffer"]) for v in batch.column("BarChart:values").to_pylist() if v]
+            if "BarChart:abscissa" in batch.schema.names:
+                positions += [np.asarray(v[0]["buffer"]) for v in batch.column("BarChart:abscissa").to_pylist() if v]
     assert len(charts) == summary.frames
     assert all(len(c) == 16 and c.mean() == pytest.approx(1.0, rel=1e-6) for c in charts)  # slabs of side R = 1
+    # each bar drawn at its slab's centre in the box's coordinates (logged once, static)
+    assert len(positions) == 1 and np.allclose(positions[0], np.arange(16) + 0.5)
 
     sim = tflock.Simulation(model="vicsek", params={"n": 50, "boundary": "open"}, steps=2,
                             engine={"precision": cpu_engine.precision})

@@ -572,7 +572,8 @@ def test_simulation_recording_content(make_sim, tmp_path: Path) -> None:
     trails = _last(batches["/world/agents/trails"], "LineStrips2D:strips")
     assert len(trails) == 600 and all(len(t) == 4 for t in trails)
     (about,) = _last(batches["/about"], "TextDocument:text")
-    assert "| neighbors | max | `max_neighbors` |" in about and "field" in about
+    assert "- **neighbors**, 2 series:\n  - mean (`mean_neighbors`): " in about and "field" in about
+    assert "|" not in about.replace("\\|", "")  # no table: the viewer cuts a table's cells at the view's edge
 
 
 def test_metric_groups_and_constant_series(tmp_path: Path) -> None:
@@ -781,8 +782,8 @@ def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(cpu_engine, params
     """Vicsek's colours view names the marks that are not on its heading wheel: the leader (white) and, with
     asynchrony, the agents dimmed because they did not update at this step."""
     import tflock
-    from tflock.frame import LEADER_COLOR
-    from tflock.models.vicsek import ASYNC_DIM
+    from tflock.frame import LEADER_COLOR, angle_colors
+    from tflock.models.vicsek import dimmed
 
     sim = tflock.Simulation(model="vicsek", params={"n": 50, "box": 7.0, **params}, steps=20, record=False,
                             engine={"precision": cpu_engine.precision})
@@ -790,7 +791,42 @@ def test_vicsek_legend_names_the_leader_and_the_dimmed_agents(cpu_engine, params
     assert legend.wheel and [label for label, _ in legend.notes] == notes
     colors = dict(legend.notes)
     assert colors.get("the leader", LEADER_COLOR) == LEADER_COLOR
-    assert colors.get("dimmed: not updated", (76, 76, 76)) == (int(255 * ASYNC_DIM),) * 3
+    white = tuple(int(c) for c in dimmed(np.full((1, 3), 255))[0])
+    assert colors.get("dimmed: not updated", white) == white
+    sim.close()
+    # every dimmed hue stays visible on the viewer's dark background (contrast ratio >= 2: a blue agent darkened
+    # alone was (0, 0, 76), 1.04) and stands apart from the updated agents' full colour
+    wheel = angle_colors(np.linspace(0, 2 * np.pi, 96, endpoint=False))
+
+    def luminance(rgb: np.ndarray) -> np.ndarray:
+        c = rgb / 255.0
+        lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        return lin @ np.array([0.2126, 0.7152, 0.0722])
+
+    background = luminance(np.array([15.0, 15.0, 15.0]))
+    assert np.all((luminance(dimmed(wheel).astype(float)) + 0.05) / (background + 0.05) >= 2.0)
+    assert np.all(dimmed(wheel).max(axis=1) <= 0.8 * wheel.max(axis=1))
+
+
+def test_vicsek_frame_dims_the_agents_that_did_not_update(cpu_engine) -> None:
+    """With asynchronous updates a frame draws the agents that updated at this step in their heading's colour and the
+    others dimmed (tflock.models.vicsek.dimmed), both from the same hue."""
+    import tflock
+    from tflock.frame import angle_colors
+    from tflock.models.vicsek import dimmed
+
+    sim = tflock.Simulation(model="vicsek", params={"n": 60, "box": 5.0, "async_bound": 3}, steps=7, record=False,
+                            engine={"precision": cpu_engine.precision})
+    sim.run()
+    model = sim.model
+    agents = np.arange(60)
+    frame = model.frame(agents, max_edges=0)
+    updated = model.updated_agents()
+    assert 0 < updated.sum() < 60
+    theta = model.state()["theta"]
+    full = angle_colors(theta)
+    np.testing.assert_array_equal(frame.colors[updated], full[updated])
+    np.testing.assert_array_equal(frame.colors[~updated], dimmed(full[~updated]))
     sim.close()
 
 
@@ -894,6 +930,11 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     batches = _chunks(path)
     for name in traces:
         assert _last(batches[f"/metrics/{name}"], "SeriesLines:names") == [f"box L/{name.rsplit('_', 1)[1]}"]
+    # each line its own colour, far from the others' (the viewer's colours from the paths nearly repeated)
+    colors = [_last(batches[f"/metrics/{name}"], "SeriesLines:colors")[0] for name in traces]
+    rgb = np.array([[(c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255] for c in colors], float)
+    gaps = np.linalg.norm(rgb[:, None] - rgb[None], axis=2) + 1e9 * np.eye(len(rgb))
+    assert gaps.min() > 80
     legends = _plot_components(path)
     assert "gnf_std" in legends and not any("agent" in name for name in legends)
     assert legends["gnf_std"]["PlotLegend:visible"] == [True]
@@ -961,6 +1002,18 @@ def test_wrapped_angles_plotted_as_points(make_sim, tmp_path: Path) -> None:
     assert _last(batches["/metrics/polarization"], "SeriesPoints:names") is None
 
 
+def test_about_keeps_descriptions_whole(make_sim, tmp_path: Path) -> None:
+    """The about page lists every metric with its whole description: `potential`'s "mean |v_i - mean v|" was cut
+    at its first | (read as a table's cell) and showed as "mean"."""
+    path = tmp_path / "about.rrd"
+    sim = make_sim(model="potential", params={"n": 12}, steps=2, record=path)
+    sim.run()
+    sim.close()
+    (about,) = _last(_chunks(path)["/about"], "TextDocument:text")
+    assert "  - mean (`velocity_mismatch_mean`): mean \\|v\\_i - mean v\\|\n" in about
+    assert "- **polarization** (`polarization`): polarization \\|mean v\\_i / \\|v\\_i\\|\\|\n" in about
+
+
 @pytest.mark.parametrize("topology,edges", [
     ("fixed", "edges of the fixed interaction graph among the drawn agents"),
     ("switching", "pairs within the interaction radius among the drawn agents"),
@@ -998,3 +1051,23 @@ def _plot_components(path: Path, archetype: str = "PlotLegend") -> dict[str, dic
                 elif key.startswith(f"{archetype}:"):
                     legends.setdefault(chunk.entity_path.rsplit("/", 1)[0], {})[key] = value
     return {names[view]: legend for view, legend in legends.items()}
+
+
+@pytest.mark.parametrize("boundary", ["periodic", "open"])
+def test_3d_box_view_looks_at_the_whole_box(make_sim, tmp_path: Path, boundary: str) -> None:
+    """A 3D box's world view starts with its camera on the box: aimed at its centre from EYE_OFFSET box sides away
+    (the viewer's own fit cut the box's lower front edges); open space keeps the viewer's fit of the agents."""
+    from tflock.record import EYE_OFFSET
+
+    path = tmp_path / "eye.rrd"
+    sim = make_sim(model="vicsek", params={"n": 200, "dim": 3, "box": 6.0, "boundary": boundary}, steps=2,
+                   record=path)
+    sim.run()
+    sim.close()
+    eyes = _plot_components(path, "EyeControls3D")
+    if boundary == "open":
+        assert not any(k.endswith(("position", "look_target")) for eye in eyes.values() for k in eye)
+        return
+    (eye,) = eyes.values()
+    assert eye["EyeControls3D:look_target"] == [pytest.approx([3.0, 3.0, 3.0])]
+    assert eye["EyeControls3D:position"] == [pytest.approx(list(3.0 + 6.0 * EYE_OFFSET))]

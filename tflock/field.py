@@ -11,10 +11,12 @@ the square around all agents) and gives each pixel one of :data:`CLASSES` colour
 * saturation: ordered pixels (length of the mean unit direction >= :data:`ORDERED`) are saturated, disordered ones
   greyish.
 
-Class 0 is an empty pixel. In 3D the field is three projections (planes xy, xz, yz), each pixel's direction that of
-the agents' directions projected onto the plane. Sums are fixed-point integers (a unit direction's component in
-units of 1 / ``DIRECTION_SCALE``) added with integer atomics: the image does not depend on the thread count or the
-order of the agents. :func:`reference_field` is the plain NumPy version the tests compare the kernels with.
+Class 0 is an empty pixel. In 3D the field is three projections (planes xy, xz, yz) of the agents' positions; in
+each the hue is the direction of the agents' headings projected onto the xy plane (their azimuth), as the agents
+themselves are coloured (:func:`tflock.frame.heading_colors`), so one polarised flock has one hue in all three.
+Sums are fixed-point integers (a unit direction's component in units of 1 / ``DIRECTION_SCALE``) added with integer
+atomics: the image does not depend on the thread count or the order of the agents. :func:`reference_field` is the
+plain NumPy version the tests compare the kernels with.
 """
 
 import math
@@ -119,14 +121,14 @@ def _fixed_unit(ua, ub, normalise: ti.template()):
 
 
 @ti.func
-def _direction(dirs: ti.template(), e, a: ti.template(), b: ti.template(), row, mode: ti.template(),
-               normalise: ti.template()):
-    """Fixed-point unit direction of element e on axes (a, b): from vectors, or an angle (2D: a, b = 0, 1)."""
+def _direction(dirs: ti.template(), e, row, mode: ti.template(), normalise: ti.template()):
+    """Fixed-point unit direction of element e in the xy plane: from vectors (3D: projected, then made unit), or an
+    angle."""
     ua = 0.0
     ub = 0.0
     if ti.static(mode == VECTORS or mode == UNIT_VECTORS):
-        ua = ti.cast(dirs[a, e], ti.f32)
-        ub = ti.cast(dirs[b, e], ti.f32)
+        ua = ti.cast(dirs[0, e], ti.f32)
+        ub = ti.cast(dirs[1, e], ti.f32)
     elif ti.static(mode == ANGLES):
         ub, ua = sin_cos(ti.cast(dirs[e], ti.f32))
     else:
@@ -175,9 +177,10 @@ def _lane_row(arr: ti.template(), row, i0, last, mode: ti.template()):
 def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.template(), wrap: ti.template(),
          pos: ti.types.ndarray(), dirs: ti.types.ndarray(), row: ti.i32, lo: ti.types.ndarray(), inv_pixel: ti.f64,
          size: ti.i32, count: ti.types.ndarray(), sums: ti.types.ndarray()):
-    """Add every agent to its pixel of projection `plane`: one to the count, its unit direction (projected onto the
-    plane, then made unit again) in fixed point to the sums; positions outside the window go to the edge pixels, or
-    with `wrap` (a periodic box drawn from the corner `lo`) to the pixels they wrap into (:func:`_pixel_index`).
+    """Add every agent to its pixel of projection `plane`: one to the count, its unit direction (in 3D projected onto
+    the xy plane, then made unit again: the module says why) in fixed point to the sums; positions outside the
+    window go to the edge pixels, or with `wrap` (a periodic box drawn from the corner `lo`) to the pixels they wrap
+    into (:func:`_pixel_index`).
 
     Chunks of agents in parallel, each in order, LANES agents at a time (pixels and fixed-point directions computed
     as vectors, which LLVM vectorises); a run of agents in one pixel is added with one atomic per array (the models
@@ -197,8 +200,8 @@ def _bin(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: ti.tem
             ua = ti.Vector([0.0] * LANES)
             ub = ti.Vector([0.0] * LANES)
             if ti.static(mode == VECTORS or mode == UNIT_VECTORS):
-                ua = _lane_row(dirs, a, i0, end - 1, mode)
-                ub = _lane_row(dirs, b, i0, end - 1, mode)
+                ua = _lane_row(dirs, 0, i0, end - 1, mode)
+                ub = _lane_row(dirs, 1, i0, end - 1, mode)
             else:
                 ub, ua = sin_cos(_lane_row(dirs, row, i0, end - 1, mode))
             fx, fy = _fixed_unit(ua, ub, normalise)
@@ -228,7 +231,7 @@ def _bin_each(n: ti.i32, mode: ti.template(), normalise: ti.template(), plane: t
     additions were lost (18 of 5000 agents counted)."""
     a, b = ti.static(PLANES[plane])
     for e in range(n):
-        fx, fy = _direction(dirs, e, a, b, row, mode, normalise)
+        fx, fy = _direction(dirs, e, row, mode, normalise)
         inv = ti.cast(inv_pixel, ti.f32)
         i = _pixel_index(ti.cast(pos[a, e], ti.f32), ti.cast(lo[a], ti.f32), inv, size, wrap)
         j = _pixel_index(ti.cast(pos[b, e], ti.f32), ti.cast(lo[b], ti.f32), inv, size, wrap)
@@ -317,7 +320,7 @@ def _from_cells(plane: ti.template(), dim: ti.template(), mode: ti.template(), n
             for cy in range(lo[1], hi[1]):
                 first = (cz * nc + cy) * nc
                 for s in range(start[first + lo[0]], start[first + hi[0]]):
-                    fx, fy = _direction(dirs, order[s], a, b, row, mode, normalise)
+                    fx, fy = _direction(dirs, order[s], row, mode, normalise)
                     c += 1
                     sx += fx
                     sy += fy
@@ -469,7 +472,7 @@ def reference_field(pos: np.ndarray, dirs: np.ndarray, origin: np.ndarray, cell:
     for p in range(planes):
         a, b = PLANES[p]
         i, j = cells[:, a] // k, cells[:, b] // k
-        u = d[:, [a, b]].astype(np.float32)
+        u = d[:, :2].astype(np.float32)  # every plane's hue: the xy projection's direction
         norm = np.sqrt((u * u).sum(axis=1, dtype=np.float32)) if normalise or dim == 3 else np.ones(n, np.float32)
         scale = np.divide(np.float32(DIRECTION_SCALE), norm, out=np.zeros_like(norm), where=norm > 0)
         fixed = np.floor(u * scale[:, None] + np.float32(0.5)).astype(np.int64)

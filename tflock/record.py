@@ -52,6 +52,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
+from rerun import encodings
 
 from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_of
 from tflock.frame import (
@@ -104,6 +105,13 @@ SPAWN_PORT = 9876
 EDGE_COLOR = (200, 200, 200, 110)
 #: the colours view's names of marks drawn in their own colours (notes, the field's levels and headings)
 NAME_COLOR = (200, 200, 200)
+#: a 3D box's camera, from the box's centre, in box sides: in front, to the right and above, far enough for the
+#: whole box in the world view of the default layout
+EYE_OFFSET = np.array([0.95, -1.5, 0.85])
+#: the lines of a plot of several series, in this order (the "tab10" palette: ten hues far apart; the viewer's own
+#: colours come from a hash of each entity path and may nearly repeat, as gnf_std's box L/8 and L/16 did)
+SERIES_COLORS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+                 (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 BOUNDS_COLOR = (200, 200, 200)
 #: draw order in the 2D world view: the field at the back, then edges, trails, arrows, agents, leader and markers
 DRAW_FIELD, DRAW_EDGES, DRAW_TRAILS, DRAW_ARROWS, DRAW_AGENTS, DRAW_MARKERS = -20.0, 0.0, 5.0, 10.0, 20.0, 30.0
@@ -116,6 +124,8 @@ LEGEND_PX = 45.0
 #: below the point (the label's top edge at the point, about 20 px high), so a label anchored 11 px up is level
 #: with the swatches of its row
 LABEL_RISE = 11.0 / LEGEND_PX
+#: the height of the colours view's titles (their labels hang below it), clear of the wheel's 90° label
+TITLE_Y = -2.05
 #: half a legend dot's width (6 UI points of radius) and a little margin, in legend units
 DOT_HALF_WIDTH = 8.0 / LEGEND_PX
 
@@ -176,6 +186,12 @@ _INDEXED = re.compile(r"^(.+)_(\d+)$")
 #: what the number of an indexed series ``<base>_<i>`` is, where it is not an agent id: base -> series name
 #: (``gnf_std_8``: the number fluctuations in boxes of side L/8, :mod:`tflock.observables`)
 INDEX_NAMES = {"gnf_std": "box L/{}"}
+
+
+def _markdown_text(text: str) -> str:
+    """Plain text as Markdown shows it: its |, _, * and backslashes escaped (a description's |v_i| would otherwise
+    be read as a table's cells or emphasis)."""
+    return re.sub(r"([\\|_*`])", r"\\\1", text)
 
 
 def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
@@ -375,6 +391,7 @@ class Recorder:
         self._edges_drawn = False
         self._leader_drawn = False
         self._leader_heading_drawn = False
+        self._profile_axes: set[str] = set()  # profiles whose bars' positions are logged (static, see log_frame)
         self._ids: np.ndarray | None = None  # agent ids of the rows last logged
         self._arrow_length: float | None = None  # the arrow length last logged
         self._trail: list[np.ndarray] = []  # the drawn agents' last positions, oldest first
@@ -427,14 +444,21 @@ class Recorder:
             world_view: rrb.View = rrb.Spatial2DView(name=name, origin="/", contents=[f"/{WORLD}/**"],
                                                      visual_bounds=bounds)
         else:
-            world_view = rrb.Spatial3DView(name="world", origin=f"/{WORLD}")
+            eye = None
+            if world.boundary != "open":  # the whole box in view (the viewer's own fit cut its lower front edges)
+                centre = np.full(3, world.box / 2)
+                eye = rrb.EyeControls3D(position=centre + world.box * EYE_OFFSET, look_target=centre,
+                                        eye_up=[0.0, 0.0, 1.0])
+            world_view = rrb.Spatial3DView(name="world", origin=f"/{WORLD}", eye_controls=eye)
         left: rrb.Container | rrb.View = world_view
         if self.field and world.dim == 3:  # the projections in a row under the 3D view
             projections = [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
                                              contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
             left = rrb.Vertical(world_view, rrb.Horizontal(*projections), row_shares=[3, 1])
         metrics = self._metric_tabs(constant)
-        profiles = [rrb.BarChartView(name=n, origin=f"/{PROFILES}/{n}") for n in self.profiles]
+        # named in words, no legend (its one entry would be the entity path); the about page says what the bars are
+        profiles = [rrb.BarChartView(name=n.replace("_", " "), origin=f"/{PROFILES}/{n}",
+                                     plot_legend=rrb.PlotLegend(visible=False)) for n in self.profiles]
         tabs = [*metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
                 rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")]
         right: rrb.Container | rrb.View = rrb.Tabs(*tabs, active_tab=0)
@@ -523,19 +547,29 @@ class Recorder:
         lines.append(f"- **edges**: {self.edges} (the graph induced on the first drawn agents, as many as the edge "
                      "cap allows).")
         if self.field:
-            where = "under the agents" if world.dim == 2 else "in the three projection views"
-            lines.append(f"- **field** ({where}): all agents binned into pixels; hue = the pixel's mean heading, "
-                         "brighter = denser (relative to the mean density), greyish = disordered. Hover a pixel.")
+            if world.dim == 2:
+                where, hue = "under the agents", "the pixel's mean heading"
+            else:  # each projection's pixels take the agents' hue: their headings' direction in the xy plane
+                where = "in the three projection views"
+                hue = "the pixel's mean heading in the xy plane (its azimuth), in every projection, as the agents"
+            lines.append(f"- **field** ({where}): all agents binned into pixels; hue = {hue}, brighter = denser "
+                         "(relative to the mean density), greyish = disordered. Hover a pixel.")
         if self.trail:
             lines.append(f"- **trails**: the last {self.trail} positions of each drawn agent.")
         if self.legend is not None:
             lines.append(f"- **{self.legend.title}**: see the colours view.")
         for name, description in self.profiles.items():
-            lines.append(f"- **{name}** (bar chart, a tab of its own): {description}")
-        lines += ["", "# Metrics", "", "| plot | series | metric | description |", "|---|---|---|---|"]
+            lines.append(f"- **{name.replace('_', ' ')}** (bar chart, a tab of its own): {description}; each bar at "
+                         "its slab's position along that axis, in the box's coordinates")
+        # a list, not a table: the viewer does not wrap a table's cells (descriptions were cut at the view's edge)
+        lines += ["", "# Metrics", "", "Each plot, and the metrics it draws (`name` in the metrics table):", ""]
         for group, members in metric_groups(list(self.metrics)).items():
-            for name, short in members:
-                lines.append(f"| {group} | {short} | `{name}` | {self.metrics[name]} |")
+            if len(members) == 1:
+                name = members[0][0]
+                lines.append(f"- **{group}** (`{name}`): {_markdown_text(self.metrics[name])}")
+                continue
+            lines.append(f"- **{group}**, {len(members)} series:")
+            lines += [f"  - {short} (`{name}`): {_markdown_text(self.metrics[name])}" for name, short in members]
         return "\n".join(lines) + "\n"
 
     def _log_static(self) -> None:
@@ -567,9 +601,10 @@ class Recorder:
             static=True,
         )
         for members in metric_groups(list(self.metrics)).values():
-            for name, short in members:
-                style = rr.SeriesPoints(names=short, marker_sizes=1.5) if name in self.angles else \
-                    rr.SeriesLines(names=short, widths=1.5)
+            for k, (name, short) in enumerate(members):
+                color = {"colors": SERIES_COLORS[k % len(SERIES_COLORS)]} if len(members) > 1 else {}
+                style = rr.SeriesPoints(names=short, marker_sizes=1.5, **color) if name in self.angles else \
+                    rr.SeriesLines(names=short, widths=1.5, **color)
                 rec.log(f"{METRICS}/{name}", style, static=True)
         if world.dim == 2:  # y up: the 2D view draws y downwards
             rec.log(WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -604,7 +639,7 @@ class Recorder:
         x = 0.0
         title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}
         if legend is not None:
-            rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, -1.85]], labels=legend.title, **title), static=True)
+            rec.log(f"{LEGEND}/title", rr.Points2D([[0.0, TITLE_Y]], labels=legend.title, **title), static=True)
             # an invisible point left of everything drawn: the view fits its points, so where the legend is wide
             # enough to fill the view's width (categories beside the field) the centred title's left half and the
             # dots' left halves would fall outside it (the mirror of the field's end point)
@@ -618,7 +653,9 @@ class Recorder:
                                                        colors=angle_colors(angle), radii=rr.Radius.ui_points(1.5)),
                         static=True)
                 quarter = np.arange(4) * (math.pi / 2)
-                where = 1.3 * np.stack([np.cos(quarter), -np.sin(quarter)], axis=1).astype(np.float32)
+                # each centred on its spot 1.3 radii out (raised by LABEL_RISE: the 90° label hung over the arrows)
+                where = (1.3 * np.stack([np.cos(quarter), -np.sin(quarter)], axis=1) - [0.0, LABEL_RISE]).astype(
+                    np.float32)
                 rec.log(f"{LEGEND}/wheel/angles", rr.Points2D(where, radii=0.0, show_labels=True,
                                                               labels=["0°", "90°", "180°", "270°"],
                                                               colors=angle_colors(quarter)), static=True)
@@ -667,7 +704,7 @@ class Recorder:
             rec.log(f"{LEGEND}/field/headings", rr.Points2D(where, radii=0.0, show_labels=True,
                                                             labels=[f"{15 * int(hues[c])}°" for c in columns],
                                                             colors=[NAME_COLOR] * len(columns)), static=True)
-            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 3.5 * SWATCH_STEP, -1.85]],
+            rec.log(f"{LEGEND}/field/title", rr.Points2D([[x + 3.5 * SWATCH_STEP, TITLE_Y]],
                                                          labels="field: heading, density", **title), static=True)
 
     # ------------------------------------------------------------------ logging
@@ -757,6 +794,9 @@ class Recorder:
             self._log_marker(shapes, marker, Points, Arrows, Strips, radius, frame.arrow_length)
         for image in frame.fields:
             self._log_field(image)
+        for name, values in frame.profiles.items():
+            if name not in self._profile_axes:
+                self._log_profile_axis(name, len(values))
         if shapes is not None:
             self._frames.add(step, pos, colors, vectors, edges if draw_edges else None, frame.profiles, shapes)
         else:
@@ -796,6 +836,18 @@ class Recorder:
         self.rec.log(TRAILS, Strips(line_strips(np.ascontiguousarray(points, dtype=np.float32)), colors=faded,
                                     radii=rr.Radius.ui_points(0.6),
                                     **({"draw_order": DRAW_TRAILS} if self.world.dim == 2 else {})))
+
+    def _log_profile_axis(self, name: str, bins: int) -> None:
+        """A profile's bars placed at their slabs' centres in the box's coordinates, `bins` slabs across the box:
+        logged once, static, beside the frames' values (component batches: BarChart.from_fields without values
+        fails in rerun-sdk 0.41's converter)."""
+        side = self.world.box / bins
+        centres = encodings.TensorData(array=(np.arange(bins, dtype=np.float32) + 0.5) * np.float32(side))
+        self.rec.log(f"{PROFILES}/{name}", [
+            rr.components.TensorDataBatch(centres).described(rr.BarChart.descriptor_abscissa()),
+            rr.components.LengthBatch(np.full(bins, side, np.float32)).described(rr.BarChart.descriptor_widths())],
+            static=True)
+        self._profile_axes.add(name)
 
     def _log_field(self, image: FieldImage) -> None:
         """One projection of the field: the class image, placed on the world's (2D) or the plane's axes (3D, y up)

@@ -117,8 +117,16 @@ FUSED_MAX_AGENTS = 4096
 #: thread) up to this many agents
 SERIAL_MAX_AGENTS = 1024
 TWO_PI = 2 * math.pi
-#: brightness, against an updated agent's colour, of a drawn agent that did not update at this step (asynchrony)
-ASYNC_DIM = 0.3
+#: a drawn agent that did not update at this step (asynchrony) takes this share of its colour, the rest of
+#: ASYNC_GREY: paler and darker than an updated agent, but with asynchrony most agents are such, and every hue of them
+#: stays visible on the viewer's dark background (darkened alone, a blue one was (0, 0, 76): nearly black)
+ASYNC_DIM = 0.45
+ASYNC_GREY = 110
+
+
+def dimmed(colors: np.ndarray) -> np.ndarray:
+    """The colours (M, 3) uint8 of agents that did not update at this step (:data:`ASYNC_DIM`)."""
+    return np.rint(ASYNC_DIM * np.asarray(colors, np.float32) + (1 - ASYNC_DIM) * ASYNC_GREY).astype(np.uint8)
 
 
 def initial_state(params: VicsekParams, seed: int) -> dict[str, np.ndarray]:
@@ -1221,8 +1229,7 @@ class Vicsek(GridModel):
                 drawing.located()
         colors = angle_colors(drawn[2, :, 0])  # from the headings themselves: no atan2 of the directions
         if self.asynchronous:
-            dim = np.where(drawn[2, :, 1] > 0, 1.0, ASYNC_DIM)[:, None]
-            colors = (colors * dim).astype(np.uint8)
+            colors = np.where(drawn[2, :, 1:2] > 0, colors, dimmed(colors))
         leader = leader_direction = None
         if p.leader.enabled:
             x0, y0, th0, _ = self._leader_row()
@@ -1251,13 +1258,12 @@ class Vicsek(GridModel):
     @property
     def color_legend(self) -> ColorLegend:
         """The hue wheel of headings, with notes for the leader (white, larger, labelled) and, with asynchrony,
-        the agents dimmed to :data:`ASYNC_DIM` of their colour because they did not update at this step (white at
-        that brightness)."""
+        the agents dimmed (:func:`dimmed`) because they did not update at this step (white dimmed so)."""
         notes = []
         if self.params.leader.enabled:
             notes.append(("the leader", LEADER_COLOR))
         if self.asynchronous:
-            notes.append(("dimmed: not updated", tuple(int(ASYNC_DIM * 255) for _ in range(3))))
+            notes.append(("dimmed: not updated", tuple(int(c) for c in dimmed(np.full((1, 3), 255))[0])))
         return ColorLegend(HEADING_LEGEND.title, wheel=True, notes=tuple(notes))
 
     def _leader_row(self) -> np.ndarray:
