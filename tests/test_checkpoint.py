@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+import tomllib
 from conftest import assert_same_run
 from rerun.chunk import RrdReader
 
@@ -167,3 +168,41 @@ def test_bad_resume_input_is_one_line(tmp_path, args, key):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in result.stderr
+
+
+def test_python_outputs_are_checked_as_the_cli_checks_them(make_sim, tmp_path):
+    """The Python API refuses what the CLI refuses: a negative checkpoint interval (it hung the run: the next
+    checkpoint step never came), a checkpoint that is not an .npz, a recording that is not an .rrd; and
+    save_checkpoint does not replace a file this run did not write (it silently turned a recording into an .npz)
+    unless overwrite=True."""
+    from tflock import ConfigError, Simulation
+    from tflock.outputs import OutputExistsError
+    from tflock.simulation import read_checkpoint
+
+    params = {"n": 100, "box": 5.0}
+    for kwargs, message in (({"checkpoint_every": -1}, "checkpoint_every: must be an integer >= 0"),
+                            ({"checkpoint_every": 2.5}, "checkpoint_every: must be an integer >= 0"),
+                            ({"checkpoint": tmp_path / "x.rrd", "checkpoint_every": 1}, "checkpoint: must be a .npz"),
+                            ({"record": tmp_path / "x.txt"}, "record: must be True, False or a .rrd file")):
+        with pytest.raises(ConfigError, match=message):
+            Simulation(model="vicsek", params=params, steps=3, **kwargs)
+    assert not list(tmp_path.iterdir())  # nothing written
+    sim = make_sim(params=params, steps=3)
+    sim.run()
+    victim = tmp_path / "run.rrd"
+    victim.write_bytes(b"a recording")
+    with pytest.raises(ConfigError, match="checkpoint: must be a .npz"):
+        sim.save_checkpoint(victim)
+    other = tmp_path / "other.checkpoint.npz"
+    other.write_bytes(b"another run's checkpoint")
+    with pytest.raises(OutputExistsError, match="exists"):
+        sim.save_checkpoint(other)
+    assert victim.read_bytes() == b"a recording" and other.read_bytes() == b"another run's checkpoint"
+    mine = sim.save_checkpoint(tmp_path / "mine.npz")
+    sim.step(1)
+    assert sim.save_checkpoint(mine) == mine  # its own file: written again
+    assert sim.save_checkpoint(other, overwrite=True) == other
+    saved = read_checkpoint(other)
+    assert saved["step"] == 4 and isinstance(saved["step"], int)
+    assert isinstance(saved["config_toml"], str) and isinstance(saved["recording_id"], str)
+    assert tomllib.loads(saved["config_toml"])["model"] == "vicsek"  # as checkpoints.md shows it

@@ -125,6 +125,8 @@ def test_default_run_records_under_recordings(default_run: Run, default_rrd: Pat
     relative = default_rrd.relative_to(default_run.cwd).as_posix()
     assert relative in result.stdout, describe(result)
     assert f"{DEFAULT_STEPS} of {DEFAULT_STEPS} steps" in result.stdout
+    # the command to view it on one line, whole, also when stdout is not a terminal (it was wrapped at 80 columns)
+    assert f"view it: tflock view {relative} (or `rerun {relative}`)" in result.stdout.splitlines(), describe(result)
 
 
 def test_summary_names_the_cpu_engine_its_threads_and_lanes(default_run: Run) -> None:
@@ -215,9 +217,13 @@ def test_inspect_rejects_missing_and_non_rrd_files(tmp_path: Path, kind: str) ->
 
 
 def test_models_lists_vicsek(tmp_path: Path) -> None:
+    """One line a model (configs.md), also when stdout is not a terminal: 4 lines, not wrapped at 80 columns."""
+    from tflock.config import MODEL_DESCRIPTIONS
+
     result = tflock("models", cwd=tmp_path)
     assert result.returncode == 0, describe(result)
     assert re.search(r"^vicsek\b", result.stdout, re.MULTILINE), result.stdout
+    assert [line.split()[0] for line in result.stdout.splitlines()] == list(MODEL_DESCRIPTIONS), result.stdout
 
 
 def test_config_show_is_the_repo_config(tmp_path: Path) -> None:

@@ -257,6 +257,9 @@ BAD_SWEEPS = {
     "no model": ("replicas = 2\n", [], "model: required key is missing"),
     "bad model": ('model = "boids"\n', [], "model: must be one of"),
     "replicas 0": ('model = "vicsek"\nreplicas = 0\n', [], "replicas: must be >= 1, got 0"),
+    "replicas 1.5": ('model = "vicsek"\nreplicas = 1.5\n', [], "replicas: expected an integer >= 1, got 1.5"),
+    "a run config": ('model = "vicsek"\n[params]\nn = 50\n', [], "params: unknown key; allowed: name, model, "
+                     "base, replicas, seed, set, grid, points (this looks like a run config, which `tflock sim"),
     "grid not a list": ('model = "vicsek"\n[grid]\n"params.noise" = 0.5\n', [], "grid.params.noise: expected a list"),
     "empty grid": ('model = "vicsek"\n[grid]\n"params.noise" = []\n', [], "grid.params.noise: expected a non-empty"),
     "bad grid value": ('model = "vicsek"\n[grid]\n"params.noise" = [0.5, -1.0]\n', [],

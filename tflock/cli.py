@@ -222,12 +222,12 @@ def _save_at_stop(simulation) -> None:
     from tflock.simulation import NumericalFaultError
 
     def announce(path: Path, step: int) -> None:
-        err.print(f"saving step {step} to {path} (Ctrl-C again to skip)", highlight=False)
+        err.print(f"saving step {step} to {path} (Ctrl-C again to skip)", highlight=False, soft_wrap=True)
 
     try:
         simulation.checkpoint_now(announce)
     except KeyboardInterrupt:
-        err.print("checkpoint skipped: the previous one stays", highlight=False)
+        err.print("checkpoint skipped: the previous one stays", highlight=False, soft_wrap=True)
     except NumericalFaultError as e:
         fail(str(e))
     except OSError as e:
@@ -287,14 +287,14 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     out.print(table)
     rrd = [p for p in simulation.files if p.suffix == ".rrd"]
     if rrd:
-        out.print(f"view it: [bold]tflock view {rrd[0]}[/] (or `rerun {rrd[0]}`)", highlight=False)
+        out.print(f"view it: [bold]tflock view {rrd[0]}[/] (or `rerun {rrd[0]}`)", highlight=False, soft_wrap=True)
 
 
 @app.command()
 def models() -> None:
     """List the models."""
     for name, description in MODEL_DESCRIPTIONS.items():
-        out.print(f"[bold]{name}[/]  {description}", highlight=False)
+        out.print(f"[bold]{name}[/]  {description}", highlight=False, soft_wrap=True)
 
 
 @config_app.command("show")
@@ -359,7 +359,7 @@ def inspect(path: Annotated[Path, typer.Argument(help="Recording (.rrd).")]) -> 
         with open(path, "rb") as file:
             cut = file.read(len(RRD_MAGIC)) == RRD_MAGIC  # a Rerun file whose end is cut: a killed run's
         fail(str(e) + (f"; if its run was killed, `tflock repair {path}` recovers what it holds" if cut else ""))
-    out.print(f"[bold]{path}[/]", highlight=False)
+    out.print(f"[bold]{path}[/]", highlight=False, soft_wrap=True)
     out.print(f"model: {summary.model}")
     steps = f" (steps {summary.steps[0]} to {summary.last_step})" if summary.steps else ""
     out.print(f"frames: {summary.frames}{steps}")
@@ -552,7 +552,7 @@ def bench(
     if not results:
         fail("no benchmark case completed")
     for path in write_results(results, prefix, "tflock " + " ".join(sys.argv[1:]), skipped):
-        out.print(f"wrote {path}", highlight=False)
+        out.print(f"wrote {path}", highlight=False, soft_wrap=True)
 
 
 @app.command()

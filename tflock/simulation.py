@@ -39,7 +39,7 @@ from tflock.engine import EngineInfo, init_engine
 from tflock.metric_rows import MetricRows
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
-from tflock.outputs import Outputs, claim, first_free
+from tflock.outputs import OutputExistsError, Outputs, claim, first_free
 from tflock.preflight import check_memory, check_viewer
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
@@ -142,10 +142,24 @@ def read_checkpoint(path: str | Path, *, arrays: bool = True) -> dict[str, Any]:
                 raise KeyError("format")
             keys = data.files if arrays else ["config_toml", "recording_id", "step"]
             out = {k: data[k] for k in keys}
-        tomllib.loads(str(out["config_toml"]))
+        # the scalars as Python values: the config as TOML text, the id, the step
+        out.update(config_toml=str(out["config_toml"]), recording_id=str(out["recording_id"]), step=int(out["step"]))
+        tomllib.loads(out["config_toml"])
         return out
     except (OSError, EOFError, TypeError, ValueError, KeyError, zipfile.BadZipFile, tomllib.TOMLDecodeError):
-        raise ConfigError(f"--resume: {path} is not a tflock checkpoint (format {CHECKPOINT_FORMAT})") from None
+        raise ConfigError(f"--resume: {path} is not a tflock checkpoint of format {CHECKPOINT_FORMAT} that can be read "
+                          f"(another kind of file, or one cut short or damaged)") from None
+
+
+def _check_output_arguments(record: bool | str | Path, checkpoint: str | Path | None, checkpoint_every: int) -> None:
+    """Refuse, as the CLI refuses its options, a recording path that is not an .rrd, a checkpoint path that is not
+    an .npz and a checkpoint interval that is not an integer >= 0 (a negative one never stopped a run)."""
+    if not isinstance(record, bool) and Path(record).suffix != ".rrd":
+        raise ConfigError(f"record: must be True, False or a .rrd file, got {str(record)!r}")
+    if checkpoint is not None and Path(checkpoint).suffix != ".npz":
+        raise ConfigError(f"checkpoint: must be a .npz file, got {str(checkpoint)!r}")
+    if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int | np.integer) or checkpoint_every < 0:
+        raise ConfigError(f"checkpoint_every: must be an integer >= 0 (0 = never), got {checkpoint_every!r}")
 
 
 def default_recording_path(model: str) -> Path:
@@ -175,6 +189,7 @@ class Simulation:
                  record: bool | str | Path = False, spawn: bool = False, connect: str | None = None,
                  resume: str | Path | None = None, checkpoint: str | Path | None = None,
                  checkpoint_every: int = 0, overwrite: bool = False, **fields: Any) -> None:
+        _check_output_arguments(record, checkpoint, checkpoint_every)
         saved = None
         if resume is not None:  # the checkpoint carries the config
             saved = read_checkpoint(resume)
@@ -431,7 +446,7 @@ class Simulation:
         try:
             if self.checkpoint_path is None and (self.recorder is None or self.recorder.path is None):
                 path = first_free(path, self._claim_lastgood)  # a name no other run writes or wrote
-            saved: Path | None = self.save_checkpoint(path)
+            saved: Path | None = self.save_checkpoint(path, overwrite=True)  # this run's or its recording's name
             where = f"the last good state (step {bad - 1}) is saved in {path}"
         except OSError as e:
             saved, where = None, f"the last good state (step {bad - 1}) could not be saved to {path}: {e.strerror or e}"
@@ -488,10 +503,18 @@ class Simulation:
             self.save_checkpoint(path)
         return path
 
-    def save_checkpoint(self, path: str | Path) -> Path:
+    def save_checkpoint(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
-        atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it."""
+        atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it.
+        A file at `path` that this run did not write (an earlier run's checkpoint, a recording) is refused with
+        :class:`tflock.outputs.OutputExistsError` unless `overwrite`; a path that is not an .npz with ConfigError."""
         path = Path(path)
+        if path.suffix != ".npz":
+            raise ConfigError(f"checkpoint: must be a .npz file, got {str(path)!r}")
+        ours = [p.resolve() for p in (*self.files, *([self.checkpoint_path] if self.checkpoint_path else []))]
+        if path.exists() and not overwrite and path.resolve() not in ours:
+            raise OutputExistsError(17, f"{path} exists (an earlier run's output); overwrite=True replaces it, or "
+                                        "give another path")
         path.parent.mkdir(parents=True, exist_ok=True)
         table = self._table.columns(copy=False)  # views of the table file: written in chunks, not held in memory
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}

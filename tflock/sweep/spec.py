@@ -270,6 +270,9 @@ def _spec_error_text(error: ValidationError) -> str:
     if kind == "extra_forbidden":
         allowed = ", ".join(field.alias or name for name, field in SweepSpec.model_fields.items())
         text = f"{key}: unknown key; allowed: {allowed}"
+        if key in ("params", "log", "engine", "steps", "seed"):  # a run's keys: not a sweep file
+            text += " (this looks like a run config, which `tflock sim --config` runs; a sweep file names its base "\
+                    "config and the values to sweep)"
     elif kind == "missing":
         text = f"{key}: required key is missing"
     elif kind in ("greater_than_equal", "less_than_equal"):
@@ -282,6 +285,12 @@ def _spec_error_text(error: ValidationError) -> str:
     elif kind in ("dict_type", "model_type"):
         text = f"{key}: expected a table, got {value_text(got)}"
     else:
-        text = f"{key}: {first['msg'][:1].lower() + first['msg'][1:]}, got {value_text(got)}"
+        text = f"{key}: {first['msg'][:1].lower() + first['msg'][1:]}"
+        field = SweepSpec.model_fields.get(str(first["loc"][0])) if len(first["loc"]) == 1 else None
+        floor = next((m.ge for m in (field.metadata if field is not None else ()) if hasattr(m, "ge")),
+                     None)
+        if kind == "config_type" and floor is not None:  # "expected an integer >= 1"
+            text += f" >= {floor}"
+        text += f", got {value_text(got)}"
     more = len(error.errors()) - 1
     return " ".join(text.split()) + (f" (and {more} more)" if more else "")
