@@ -134,4 +134,5 @@ def test_recording_shows_which_agents_updated(make_sim):
     # the updated agents at full brightness, the others paler and darker (tflock.models.vicsek.dimmed: at most
     # 0.45 x 255 + 0.55 x 110 = 175), so the updated ones stand out
     assert brightness[updated].min() == 255 and brightness[~updated].max() <= 176
+    assert brightness[~updated].min() >= 100  # still visible (darkened alone to 30 %: a blue one's was 76)
     assert brightness[updated].min() > 1.4 * brightness[~updated].max()

@@ -6,11 +6,15 @@ import sys
 
 import numpy as np
 import pytest
-import tomllib
 from conftest import assert_same_run
 from rerun.chunk import RrdReader
 
 from tflock.record import read_recording, verify_recording
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 SMALL = ["--set", "params.n=500", "--set", "params.box=15.8"]
 
@@ -116,6 +120,8 @@ def test_an_interrupted_save_keeps_the_previous_checkpoint(make_sim, tmp_path, m
     with pytest.raises(KeyboardInterrupt):
         sim.save_checkpoint(path)
     assert int(read_checkpoint(path, arrays=False)["step"]) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz", "c.npz.lock"]  # held by the open run: no .tmp
+    sim.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz"]
 
 
@@ -176,7 +182,7 @@ def test_python_outputs_are_checked_as_the_cli_checks_them(make_sim, tmp_path):
     save_checkpoint does not replace a file this run did not write (it silently turned a recording into an .npz)
     unless overwrite=True."""
     from tflock import ConfigError, Simulation
-    from tflock.outputs import OutputExistsError
+    from tflock.outputs import OutputBusyError, OutputExistsError
     from tflock.simulation import read_checkpoint
 
     params = {"n": 100, "box": 5.0}
@@ -206,3 +212,16 @@ def test_python_outputs_are_checked_as_the_cli_checks_them(make_sim, tmp_path):
     assert saved["step"] == 4 and isinstance(saved["step"], int)
     assert isinstance(saved["config_toml"], str) and isinstance(saved["recording_id"], str)
     assert tomllib.loads(saved["config_toml"])["model"] == "vicsek"  # as checkpoints.md shows it
+    sim.close()  # (it holds the files it saved to until then)
+    # a resumed run may write its own checkpoint again; record=None is no recording, as False
+    resumed = Simulation(resume=other, steps=8, record=None)
+    resumed.run()
+    assert resumed.save_checkpoint(other) == other and read_checkpoint(other)["step"] == 8
+    # a path this run saved to is held until it closes: another run may not write it meanwhile
+    with pytest.raises(OutputBusyError):
+        resumed_too = Simulation(resume=other, steps=9)
+        try:
+            resumed_too.save_checkpoint(other, overwrite=True)
+        finally:
+            resumed_too.close()
+    resumed.close()

@@ -10,11 +10,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import tomllib
 from conftest import PRECISION, assert_one_error_line, invoke_in, tflock_process, wait_for_rows
 
 from tflock import outputs, simulation
 from tflock.record import read_recording, verify_recording
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 SMALL = ["--set", "params.n=200", "--set", "params.box=10.0"]
 ENGINE = ["--set", f"engine.precision={PRECISION}"]

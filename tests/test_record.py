@@ -1053,7 +1053,7 @@ def _plot_components(path: Path, archetype: str = "PlotLegend") -> dict[str, dic
     return {names[view]: legend for view, legend in legends.items()}
 
 
-@pytest.mark.parametrize("boundary", ["periodic", "open"])
+@pytest.mark.parametrize("boundary", ["periodic", "reflecting", "open"])
 def test_3d_box_view_looks_at_the_whole_box(make_sim, tmp_path: Path, boundary: str) -> None:
     """A 3D box's world view starts with its camera on the box: aimed at its centre from EYE_OFFSET box sides away
     (the viewer's own fit cut the box's lower front edges); open space keeps the viewer's fit of the agents."""
@@ -1065,9 +1065,32 @@ def test_3d_box_view_looks_at_the_whole_box(make_sim, tmp_path: Path, boundary: 
     sim.run()
     sim.close()
     eyes = _plot_components(path, "EyeControls3D")
+    assert "world" in _layout_names(path)
     if boundary == "open":
         assert not any(k.endswith(("position", "look_target")) for eye in eyes.values() for k in eye)
         return
     (eye,) = eyes.values()
     assert eye["EyeControls3D:look_target"] == [pytest.approx([3.0, 3.0, 3.0])]
     assert eye["EyeControls3D:position"] == [pytest.approx(list(3.0 + 6.0 * EYE_OFFSET))]
+
+
+def test_colours_view_labels_clear_of_the_wheel_and_the_band_profile_tab(make_sim, tmp_path: Path) -> None:
+    """The hue wheel's angle labels are centred on their spots 1.3 radii out (the viewer hangs a label below its
+    point: the 90° one lay over the arrows), the title's label ends above the 90° label, and the band profile's tab
+    is named in words with no legend (its one entry was the entity path)."""
+    from tflock.record import LABEL_RISE, LEGEND_PX, TITLE_Y
+
+    path = tmp_path / "legend.rrd"
+    sim = make_sim(model="vicsek", params={"n": 500, "box": 16.0}, steps=2, record=path)
+    sim.run()
+    sim.close()
+    batches = _chunks(path)
+    spots = np.array(_last(batches["/legend/wheel/angles"], "Points2D:positions"))
+    quarter = np.arange(4) * (np.pi / 2)
+    want = 1.3 * np.stack([np.cos(quarter), -np.sin(quarter)], axis=1) - [0.0, LABEL_RISE]
+    np.testing.assert_allclose(spots, want, atol=1e-6)
+    (title,) = _last(batches["/legend/title"], "Points2D:positions")
+    label_height = 20.0 / LEGEND_PX
+    assert title[1] == pytest.approx(TITLE_Y) and TITLE_Y + label_height < spots[1][1]  # 90°: y = -1.3 - rise
+    profiles = _plot_components(path)
+    assert profiles["band profile"]["PlotLegend:visible"] == [False]

@@ -136,8 +136,8 @@ def sim(
             from tflock.simulation import read_checkpoint
 
             header = read_checkpoint(resume, arrays=False)
-            cfg = load_config(tomllib.loads(str(header["config_toml"])), overrides=overrides)
-            at = int(header["step"])
+            cfg = load_config(tomllib.loads(header["config_toml"]), overrides=overrides)
+            at = header["step"]
             if cfg.steps <= at:
                 fail(f"--steps: the checkpoint is at step {at} and the run would end at step {cfg.steps}: nothing "
                      f"to run; give --steps > {at} (the total, counted from step 0)")
@@ -323,7 +323,7 @@ def view(
             from tflock.screenshot import take_screenshots
 
             take_screenshots(path, [screenshot])
-            out.print(str(screenshot))
+            out.print(str(screenshot), soft_wrap=True, highlight=False, markup=False)
             return
         open_viewer(path, web=web, port=port, grpc_port=grpc_port)
     except (RuntimeError, OSError) as e:

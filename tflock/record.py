@@ -41,7 +41,7 @@ import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -188,10 +188,16 @@ _INDEXED = re.compile(r"^(.+)_(\d+)$")
 INDEX_NAMES = {"gnf_std": "box L/{}"}
 
 
+def _series_color(k: int, members: Sequence[Any]) -> dict[str, tuple[int, int, int]]:
+    """The colour of series k of a plot of `members`: :data:`SERIES_COLORS` for 2 to 10 series; none (the viewer's
+    own) for one, or for more than the palette holds (the per-agent plots), which it would repeat."""
+    return {"colors": SERIES_COLORS[k]} if 1 < len(members) <= len(SERIES_COLORS) else {}
+
+
 def _markdown_text(text: str) -> str:
     """Plain text as Markdown shows it: its |, _, * and backslashes escaped (a description's |v_i| would otherwise
-    be read as a table's cells or emphasis)."""
-    return re.sub(r"([\\|_*`])", r"\\\1", text)
+    be read as a table's cells or emphasis, a <N> as HTML)."""
+    return re.sub(r"([\\|_*`<])", r"\\\1", text)
 
 
 def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
@@ -445,7 +451,7 @@ class Recorder:
                                                      visual_bounds=bounds)
         else:
             eye = None
-            if world.boundary != "open":  # the whole box in view (the viewer's own fit cut its lower front edges)
+            if world.bounded:  # the whole box in view (the viewer's own fit cut its lower front edges)
                 centre = np.full(3, world.box / 2)
                 eye = rrb.EyeControls3D(position=centre + world.box * EYE_OFFSET, look_target=centre,
                                         eye_up=[0.0, 0.0, 1.0])
@@ -510,7 +516,8 @@ class Recorder:
             views.append(rrb.TimeSeriesView(
                 name="constant" + (f": {constant[0]}" if len(constant) == 1 else ""), origin=f"/{METRICS}",
                 contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant), None),
-                axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m) for m in constant}))
+                axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m, **_series_color(k, constant))
+                                             for k, m in enumerate(constant)}))
         return views
 
     def _y_range(self, members: list[str]) -> tuple[float, float] | None:
@@ -551,7 +558,8 @@ class Recorder:
                 where, hue = "under the agents", "the pixel's mean heading"
             else:  # each projection's pixels take the agents' hue: their headings' direction in the xy plane
                 where = "in the three projection views"
-                hue = "the pixel's mean heading in the xy plane (its azimuth), in every projection, as the agents"
+                hue = ("the pixel's mean heading in the xy plane (its azimuth), in every projection, as the agents are "
+                       "coloured")
             lines.append(f"- **field** ({where}): all agents binned into pixels; hue = {hue}, brighter = denser "
                          "(relative to the mean density), greyish = disordered. Hover a pixel.")
         if self.trail:
@@ -602,7 +610,7 @@ class Recorder:
         )
         for members in metric_groups(list(self.metrics)).values():
             for k, (name, short) in enumerate(members):
-                color = {"colors": SERIES_COLORS[k % len(SERIES_COLORS)]} if len(members) > 1 else {}
+                color = _series_color(k, members)
                 style = rr.SeriesPoints(names=short, marker_sizes=1.5, **color) if name in self.angles else \
                     rr.SeriesLines(names=short, widths=1.5, **color)
                 rec.log(f"{METRICS}/{name}", style, static=True)
@@ -632,9 +640,9 @@ class Recorder:
                 )
 
     def _log_legend(self) -> None:
-        """The colours view (static, its own y-up picture): the hue wheel of headings as 24 arrows, or a column of
-        named colours, and right of either the legend's notes; to their right the field's colours (a sweep of headings,
-        named in degrees, at three densities, and disordered)."""
+        """The colours view (static, its own picture, y down as a 2D view draws it): the hue wheel of headings as 24
+        arrows, or a column of named colours, and right of either the legend's notes; to their right the field's
+        colours (a sweep of headings, named in degrees, at three densities, and disordered)."""
         rec, legend = self.rec, self.legend
         x = 0.0
         title = {"radii": 0.0, "show_labels": True, "colors": [(230, 230, 230)]}

@@ -39,7 +39,7 @@ from tflock.engine import EngineInfo, init_engine
 from tflock.metric_rows import MetricRows
 from tflock.models import model_class
 from tflock.models.base import Lyapunov
-from tflock.outputs import OutputExistsError, Outputs, claim, first_free
+from tflock.outputs import Outputs, claim, first_free
 from tflock.preflight import check_memory, check_viewer
 from tflock.rng import Stream, hash_np
 from tflock.stability import cheap_test, lyapunov_test
@@ -151,13 +151,23 @@ def read_checkpoint(path: str | Path, *, arrays: bool = True) -> dict[str, Any]:
                           f"(another kind of file, or one cut short or damaged)") from None
 
 
-def _check_output_arguments(record: bool | str | Path, checkpoint: str | Path | None, checkpoint_every: int) -> None:
-    """Refuse, as the CLI refuses its options, a recording path that is not an .rrd, a checkpoint path that is not
-    an .npz and a checkpoint interval that is not an integer >= 0 (a negative one never stopped a run)."""
-    if not isinstance(record, bool) and Path(record).suffix != ".rrd":
+def _checkpoint_file(path: str | Path) -> Path:
+    """`path` as a checkpoint's path: an .npz, else ConfigError."""
+    if not isinstance(path, str | Path) or Path(path).suffix != ".npz":
+        raise ConfigError(f"checkpoint: must be a .npz file, got {str(path)!r}")
+    return Path(path)
+
+
+def _check_output_arguments(record: bool | str | Path | None, checkpoint: str | Path | None,
+                            checkpoint_every: int) -> None:
+    """Refuse, as the CLI refuses its options, a recording that is neither a bool, None nor an .rrd path, a
+    checkpoint path that is not an .npz and a checkpoint interval that is not an integer >= 0 (a negative one never
+    stopped a run)."""
+    if not (record is None or isinstance(record, bool) or isinstance(record, str | Path) and
+            Path(record).suffix == ".rrd"):
         raise ConfigError(f"record: must be True, False or a .rrd file, got {str(record)!r}")
-    if checkpoint is not None and Path(checkpoint).suffix != ".npz":
-        raise ConfigError(f"checkpoint: must be a .npz file, got {str(checkpoint)!r}")
+    if checkpoint is not None:
+        _checkpoint_file(checkpoint)
     if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int | np.integer) or checkpoint_every < 0:
         raise ConfigError(f"checkpoint_every: must be an integer >= 0 (0 = never), got {checkpoint_every!r}")
 
@@ -186,16 +196,18 @@ class Simulation:
 
     def __init__(self, config: str | Path | Mapping[str, Any] | Config | None = None, *,
                  model: str | None = None, overrides: list[str] | Mapping[str, Any] | None = None,
-                 record: bool | str | Path = False, spawn: bool = False, connect: str | None = None,
+                 record: bool | str | Path | None = False, spawn: bool = False, connect: str | None = None,
                  resume: str | Path | None = None, checkpoint: str | Path | None = None,
                  checkpoint_every: int = 0, overwrite: bool = False, **fields: Any) -> None:
         _check_output_arguments(record, checkpoint, checkpoint_every)
+        record = bool(record) if record is None or isinstance(record, bool) else record
+        self._resumed_from = None if resume is None else Path(resume)  # save_checkpoint may write it again
         saved = None
         if resume is not None:  # the checkpoint carries the config
             saved = read_checkpoint(resume)
             if config is not None or model is not None:
                 raise ConfigError("--resume: the checkpoint carries its config; do not also give a config or model")
-            config = tomllib.loads(str(saved["config_toml"]))
+            config = tomllib.loads(saved["config_toml"])
         if isinstance(config, Config) and (overrides or fields or model):
             config = config_to_dict(config)
         merged: dict[str, Any] = {}  # the keys given with the config, overrides and fields
@@ -506,15 +518,16 @@ class Simulation:
     def save_checkpoint(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the full state (the model's arrays, step, config, metrics so far, recording id) to an .npz,
         atomically (a temporary file renamed over `path`). :class:`Simulation` ``(resume=path)`` continues it.
-        A file at `path` that this run did not write (an earlier run's checkpoint, a recording) is refused with
-        :class:`tflock.outputs.OutputExistsError` unless `overwrite`; a path that is not an .npz with ConfigError."""
-        path = Path(path)
-        if path.suffix != ".npz":
-            raise ConfigError(f"checkpoint: must be a .npz file, got {str(path)!r}")
-        ours = [p.resolve() for p in (*self.files, *([self.checkpoint_path] if self.checkpoint_path else []))]
-        if path.exists() and not overwrite and path.resolve() not in ours:
-            raise OutputExistsError(17, f"{path} exists (an earlier run's output); overwrite=True replaces it, or "
-                                        "give another path")
+        A path that is not an .npz is a ConfigError; an .npz there that this run neither wrote, locked nor resumed
+        from (an earlier run's checkpoint) is refused with :class:`tflock.outputs.OutputExistsError` unless
+        `overwrite`, and a path another open run holds with OutputBusyError (:func:`tflock.outputs.claim`, which also
+        locks it for this run)."""
+        path = _checkpoint_file(path)
+        held = {p.resolve() for p in (*self.files, *(lock.path for lock in self._outputs.locks))}
+        if path.resolve() not in held:
+            taken = Outputs()
+            claim(path, "checkpoint", overwrite=overwrite, allowed=self._resumed_from, into=taken)
+            self._outputs.locks += taken.locks  # (a file it replaces is replaced by the write below)
         path.parent.mkdir(parents=True, exist_ok=True)
         table = self._table.columns(copy=False)  # views of the table file: written in chunks, not held in memory
         arrays = {f"model__{k}": v for k, v in self.model.checkpoint().items()}
@@ -531,7 +544,7 @@ class Simulation:
         except BaseException:  # a full disk, a second Ctrl-C: the previous checkpoint stays, and no stray .tmp
             tmp.unlink(missing_ok=True)
             raise
-        if path not in self.files:
+        if path.resolve() not in {p.resolve() for p in self.files}:
             self.files.append(path)
         self.checkpoint_steps[path] = self.model.step_index
         return path

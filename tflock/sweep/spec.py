@@ -270,7 +270,7 @@ def _spec_error_text(error: ValidationError) -> str:
     if kind == "extra_forbidden":
         allowed = ", ".join(field.alias or name for name, field in SweepSpec.model_fields.items())
         text = f"{key}: unknown key; allowed: {allowed}"
-        if key in ("params", "log", "engine", "steps", "seed"):  # a run's keys: not a sweep file
+        if key in ("params", "log", "engine", "steps"):  # a run's keys: not a sweep file
             text += " (this looks like a run config, which `tflock sim --config` runs; a sweep file names its base "\
                     "config and the values to sweep)"
     elif kind == "missing":
@@ -289,7 +289,9 @@ def _spec_error_text(error: ValidationError) -> str:
         field = SweepSpec.model_fields.get(str(first["loc"][0])) if len(first["loc"]) == 1 else None
         floor = next((m.ge for m in (field.metadata if field is not None else ()) if hasattr(m, "ge")),
                      None)
-        if kind == "config_type" and floor is not None:  # "expected an integer >= 1"
+        if kind == "config_type" and key == "seed":  # the range the bounds' message gives it
+            text += f" between 0 and {SEED_MAX}"
+        elif kind == "config_type" and floor is not None:  # "expected an integer >= 1"
             text += f" >= {floor}"
         text += f", got {value_text(got)}"
     more = len(error.errors()) - 1
