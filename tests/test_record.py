@@ -1094,3 +1094,24 @@ def test_colours_view_labels_clear_of_the_wheel_and_the_band_profile_tab(make_si
     assert title[1] == pytest.approx(TITLE_Y) and TITLE_Y + label_height < spots[1][1]  # 90°: y = -1.3 - rise
     profiles = _plot_components(path)
     assert profiles["band profile"]["PlotLegend:visible"] == [False]
+
+
+def test_a_leader_run_plots_the_leader_error_on_the_first_tab(make_sim, tmp_path: Path) -> None:
+    """Vicsek with a leader puts the leader error beside the polarization, the first plots of the first tab (it was
+    the ninth plot, on the second tab), while the metrics table keeps the model's order; without a leader the plots
+    follow the metrics' order."""
+    orders = {}
+    for leader in (True, False):
+        sim = make_sim(model="vicsek", params={"n": 60, "box": 5.0, "leader": {"enabled": leader}}, steps=3,
+                       record=tmp_path / f"leader-{leader}.rrd")
+        sim.run()
+        recorder = sim.recorder
+        right = recorder.blueprint(recorder.constant_metrics()).root_container.contents[1]
+        legend, tabs = right.contents  # the colours view above the tabs
+        first = tabs.contents[0]
+        orders[leader] = [view.name for view in first.contents]
+        columns = list(sim.metrics())
+        sim.close()
+        assert columns[:3] == ["step", "time", "polarization"]
+    assert orders[True][:2] == ["polarization", "leader_error"]
+    assert orders[False][:2] == ["polarization", "mean_heading"]

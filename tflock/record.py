@@ -355,6 +355,7 @@ class Recorder:
         profiles: Mapping[str, str] | None = None,
         angles: tuple[str, ...] = (),
         edges: str = RADIUS_EDGES,
+        first_plots: tuple[str, ...] = (),
         path: Path | None = None,
         spawn: bool = False,
         connect: str | None = None,
@@ -372,7 +373,8 @@ class Recorder:
         views and legend are laid out); ``trail``: draw each drawn agent's last `trail` positions; ``drawn``: one
         line on what is drawn (e.g. "2000 of 100000 agents"), for the about document; ``angles``: metrics that are
         angles wrapped into [0, 2 pi), plotted as points (a line would cross the plot where the angle wraps);
-        ``edges``: what the frames' edges join, for the about document."""
+        ``edges``: what the frames' edges join, for the about document; ``first_plots``: metrics whose plots come
+        first, in this order (the others follow in the metrics' order)."""
         for name in metrics:
             if not _METRIC_NAME.match(name):
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
@@ -386,6 +388,7 @@ class Recorder:
         self.metrics = dict(metrics)
         self.profiles = dict(profiles or {})  # name -> description of the frames' profiles (one bar chart each)
         self.angles = tuple(angles)
+        self.first_plots = tuple(first_plots)
         self.edges = edges
         self.path = _check_writable(path, "recording") if path is not None else None
         self.metrics_table = _check_writable(metrics_table, "metrics table") if metrics_table else None
@@ -501,10 +504,14 @@ class Recorder:
         return tabs
 
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
-        """One plot per group of related metrics (:func:`metric_groups`), constant series in one plot, last."""
+        """One plot per group of related metrics (:func:`metric_groups`), the groups of ``first_plots`` first,
+        constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
+        groups = metric_groups(varying)
+        first = [g for m in self.first_plots for g, members in groups.items() if m in dict(members)]
         views = []
-        for group, members in metric_groups(varying).items():
+        for group in dict.fromkeys([*first, *groups]):  # the first plots', then the rest in the metrics' order
+            members = groups[group]
             names = [m for m, _ in members]
             y_range = self._y_range(names)
             views.append(rrb.TimeSeriesView(

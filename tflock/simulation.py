@@ -320,7 +320,7 @@ class Simulation:
             self.recorder = Recorder(model=self.config.model, config_toml=config_to_toml(self.config),
                                      world=self.model.world(), metrics=self.model.metric_descriptions,
                                      profiles=self.model.profile_descriptions, angles=self.model.angle_metrics,
-                                     edges=self.model.edges_description,
+                                     edges=self.model.edges_description, first_plots=self.model.first_plots,
                                      path=path, spawn=spawn, connect=connect, metrics_table=table,
                                      recording_id=self.recording_id, legend=self.model.color_legend,
                                      field=self._field_size > 0, trail=log.trail, drawn=drawn)

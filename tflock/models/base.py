@@ -51,6 +51,9 @@ class Model(ABC):
     angle_metrics: tuple[str, ...] = ()
     #: what a frame's edges join, for the recording's about text
     edges_description: str = RADIUS_EDGES
+    #: metrics whose plots the recording puts first, in this order (the run's main quantities: Vicsek with a leader,
+    #: the leader error beside the polarization); the metrics table keeps its own order
+    first_plots: tuple[str, ...] = ()
     #: name -> description of the 1D profiles each frame carries (Frame.profiles), drawn as bar charts
     profile_descriptions: Mapping[str, str] = {}
     #: what the colours of the drawn agents mean (the recorder draws it beside the world view)

@@ -885,6 +885,7 @@ class Vicsek(GridModel):
         }
         if params.leader.enabled:
             self.metric_descriptions["leader_error"] = "mean |heading - leader heading| of followers (rad)"
+            self.first_plots = ("polarization", "leader_error")  # the run's question: do they follow?
         self.observables = TransitionObservables(params.n, 2, params.boundary, params.box, params.radius, replicas)
         self.metric_descriptions.update(self.observables.descriptions)
         self.profile_descriptions = self.observables.profile_descriptions
