@@ -479,8 +479,8 @@ def _one_error_text(error: ErrorDetails, model: Any) -> str:
         allowed = "expected a string"
     else:
         allowed = error["msg"][:1].lower() + error["msg"][1:]
-        if kind == "config_type" and field is not None and _bounds(field):  # "expected a finite number > 0"
-            allowed += " " + _range_text(field).removeprefix("must be ")
+        if kind == "config_type" and field is not None:
+            allowed = with_range(allowed, field)
     return f"{key}: {allowed}, got {_value_text(got)}"
 
 
@@ -508,6 +508,12 @@ def _bounds(field: FieldInfo) -> dict[str, Any]:
             if getattr(constraint, name, None) is not None:
                 bounds[name] = getattr(constraint, name)
     return bounds
+
+
+def with_range(expected: str, field: FieldInfo) -> str:
+    """A type error's "expected a number" with the field's bounds, if any: "expected a finite number > 0",
+    "expected an integer between 0 and 4294967295"."""
+    return f"{expected} {_range_text(field).removeprefix('must be ')}" if _bounds(field) else expected
 
 
 def _range_text(field: FieldInfo) -> str:

@@ -40,6 +40,7 @@ from tflock.config import (
     load_config,
     parse_override,
     tomllib,
+    with_range,
 )
 
 __all__ = ["Point", "Sweep", "SweepSpec", "load_sweep", "value_text"]
@@ -285,14 +286,10 @@ def _spec_error_text(error: ValidationError) -> str:
     elif kind in ("dict_type", "model_type"):
         text = f"{key}: expected a table, got {value_text(got)}"
     else:
-        text = f"{key}: {first['msg'][:1].lower() + first['msg'][1:]}"
+        expected = first["msg"][:1].lower() + first["msg"][1:]
         field = SweepSpec.model_fields.get(str(first["loc"][0])) if len(first["loc"]) == 1 else None
-        floor = next((m.ge for m in (field.metadata if field is not None else ()) if hasattr(m, "ge")),
-                     None)
-        if kind == "config_type" and key == "seed":  # the range the bounds' message gives it
-            text += f" between 0 and {SEED_MAX}"
-        elif kind == "config_type" and floor is not None:  # "expected an integer >= 1"
-            text += f" >= {floor}"
-        text += f", got {value_text(got)}"
+        if kind == "config_type" and field is not None:  # as a config's: "expected an integer >= 1"
+            expected = with_range(expected, field)
+        text = f"{key}: {expected}, got {value_text(got)}"
     more = len(error.errors()) - 1
     return " ".join(text.split()) + (f" (and {more} more)" if more else "")
