@@ -1,4 +1,5 @@
-"""The branch-free polynomial sin/cos/atan2 of tflock.fastmath against NumPy's float64 functions.
+"""The branch-free polynomial sin/cos/atan2 of tflock.fastmath against NumPy's float64 functions, and its integer
+quotient against NumPy's floor division.
 
 The lane-wise Vicsek step uses them instead of the C library's, so their error enters every heading; the bounds
 below are a few units in the last place of the session's precision (the oracle tests then bound whole steps).
@@ -11,7 +12,7 @@ import pytest
 import taichi as ti
 from conftest import ARCH, PRECISION
 
-from tflock.fastmath import atan2, cos_sin, sin_cos
+from tflock.fastmath import atan2, cos_sin, floor_quotient, sin_cos
 
 F64 = PRECISION == "f64"
 REAL = np.float64 if F64 else np.float32
@@ -116,3 +117,29 @@ def test_formation_step_keeps_cos_sin_of_the_headings(engine):
     kept = model.trig.to_numpy().copy()
     cos_sin(cfg.params.n, np.ascontiguousarray(model.f[model.cur].to_numpy()[THETA]), model.trig)
     assert np.array_equal(kept, model.trig.to_numpy())
+
+
+@ti.kernel
+def _quotients(a: ti.types.ndarray(), b: ti.types.ndarray(), out: ti.types.ndarray()):
+    for i in range(a.shape[0] // 8):  # as lanes, the way the steps call it
+        va = ti.Vector([a[8 * i + k] for k in ti.static(range(8))])
+        vb = ti.Vector([b[8 * i + k] for k in ti.static(range(8))])
+        q = floor_quotient(va, vb)
+        for k in ti.static(range(8)):
+            out[8 * i + k] = q[k]
+
+
+def test_floor_quotient_is_floor_division(engine):
+    """Exact for every 32-bit pair: near-integer quotients at the top of the range (a = q b - 1, q b, q b + 1 for
+    large q and large b), negative dividends, and random pairs; a replica's key depends on it."""
+    rng = np.random.default_rng(0)
+    top = 2**31 - 1
+    b = np.concatenate([rng.integers(1, top, 4000), rng.integers(1, 100, 4000), np.full(8, top), np.arange(1, 9)])
+    q = rng.integers(0, top // b + 1)
+    a = np.clip(q * b + rng.integers(-1, 2, b.size), -top, top)
+    a[: b.size // 4] = rng.integers(-top, top, b.size // 4)
+    a[-8:] = [top, top - 1, -top, 0, 1, -1, top, 7]
+    a, b = a.astype(np.int32), b.astype(np.int32)
+    out = np.zeros(a.size, dtype=np.int32)
+    _quotients(a, b, out)
+    np.testing.assert_array_equal(out, a.astype(np.int64) // b)

@@ -467,7 +467,8 @@ def cut_row(row, nc, start: ti.template(), run_end: ti.template()):
         for x in range(nc):
             run_end[base + x] = -1
     else:
-        first_row = row - row % nc  # row 0 of this row's replica
+        y = row % nc  # this row within its replica, and the rows beside it (circularly), found once a row
+        sides = ti.Vector([row - y + ti.select(y == 0, nc - 1, y - 1), row, row - y + ti.select(y == nc - 1, 0, y + 1)])
         begin = -1  # first cell of the open run (-1: none)
         agents = 0
         below = start[base]
@@ -480,8 +481,7 @@ def cut_row(row, nc, start: ti.template(), run_end: ti.template()):
                 column = 0
                 if x + 1 < nc:
                     for r in ti.static(range(3)):
-                        y = first_row + (row - first_row + r - 1 + nc) % nc
-                        column += start[y * nc + x + 2] - start[y * nc + x + 1]
+                        column += start[sides[r] * nc + x + 2] - start[sides[r] * nc + x + 1]
                 join = column <= LANES
             run_end[base + x] = -1
             if join:
@@ -507,14 +507,16 @@ def _runs(rows: ti.i32, nc: ti.i32, shift: ti.i32, start: ti.types.ndarray(), ru
 @ti.func
 def run_at(b, nc, start: ti.template(), run_end: ti.template()):
     """The run of cells that starts at bucket b (see :meth:`CellGrid.runs`): its grid row, its columns [x0, x1) in
-    that row and its sorted agents [a0, a1); a0 == a1 where no run starts at b. Lane-wise kernels take the agents
-    ``LANES`` at a time, ``for block in range((a1 - a0 + LANES - 1) // LANES)``."""
+    that row and its sorted agents [a0, a1); a0 == a1 (and row, x0 are 0) where no run starts at b. Lane-wise
+    kernels take the agents ``LANES`` at a time, ``for block in range((a1 - a0 + LANES - 1) // LANES)``."""
     x1 = run_end[b]
-    row = b // nc
-    x0 = b - row * nc
+    row = 0
+    x0 = 0
     a0 = start[b]
     a1 = a0
-    if x1 >= 0:
+    if x1 >= 0:  # (an integer division only where a run starts: most buckets of a sparse swarm hold none)
+        row = b // nc
+        x0 = b - row * nc
         a1 = start[row * nc + x1]
     return row, x0, x1, a0, a1
 
@@ -534,12 +536,14 @@ def run_spans(row, x0, x1, r, nc, start: ti.template(), boundary: ti.template(),
     stride = 1
     for k in ti.static(range(1, dim)):
         off = (r // ti.static(3 ** (k - 1))) % 3 - 1
-        c = (row // stride) % nc
+        c = row // stride  # (stride 1 at k = 1: no division)
+        if c >= nc:  # a later replica's row, or z in 3D; the first replica's y needs no division
+            c %= nc
         t = c + off
         if ti.static(boundary == PERIODIC):
             if nc < 3 and (off < 0 or off >= nc):
                 ok = False
-            t = (t + nc) % nc
+            t = ti.select(t < 0, t + nc, ti.select(t >= nc, t - nc, t))  # t in [-1, nc]: (t + nc) % nc
         elif t < 0 or t >= nc:
             ok = False
         shift += (t - c) * stride
@@ -578,8 +582,9 @@ def run_wraps(row, x0, x1, nc, boundary: ti.template()):
     ti.static_assert(boundary != WINDOW, "a window grid's runs: window_run_wraps")
     wraps = False
     if ti.static(boundary == PERIODIC):
-        y = row % nc
-        wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
+        if x1 >= 0:  # a run (no division for an empty bucket)
+            y = row % nc
+            wraps = x0 == 0 or x1 == nc or y == 0 or y == nc - 1
     return wraps
 
 
@@ -593,15 +598,16 @@ def window_run_wraps(row, x0, x1, nc, cell_size, box, bounds: ti.template(), anc
     box / 2 wide, any two positions in it are less than box / 2 apart along each axis: their plain difference is
     then what :func:`tflock.space.displacement` returns for the periodic box, bit for bit (it shifts only beyond
     box / 2). A swarm away from the torus's edges thus skips the minimum image in most runs."""
-    y = row % nc
-    lo = ti.Vector([x0 - 2, y - 2])
-    hi = ti.Vector([x1 + 2, y + 3])
     wraps = False
-    for d in ti.static(range(2)):
-        a = anchor[d, 0] + (bounds[0, d] + lo[d]) * cell_size
-        b = anchor[d, 0] + (bounds[0, d] + hi[d]) * cell_size
-        if a < 0 or b > box or b - a >= 0.5 * box:
-            wraps = True
+    if x1 >= 0:  # a run (no division for an empty bucket)
+        y = row % nc
+        lo = ti.Vector([x0 - 2, y - 2])
+        hi = ti.Vector([x1 + 2, y + 3])
+        for d in ti.static(range(2)):
+            a = anchor[d, 0] + (bounds[0, d] + lo[d]) * cell_size
+            b = anchor[d, 0] + (bounds[0, d] + hi[d]) * cell_size
+            if a < 0 or b > box or b - a >= 0.5 * box:
+                wraps = True
     return wraps
 
 

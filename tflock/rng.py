@@ -12,6 +12,8 @@ from enum import IntEnum
 import numpy as np
 import taichi as ti
 
+from tflock.fastmath import floor_quotient
+
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 _INV_2_24 = 1.0 / 16777216.0
@@ -124,5 +126,5 @@ def replica_key(seed, agent, per_replica):
     Replica r draws with seed + r and its local id, exactly what a lone run with seed + r draws, so a batch
     reproduces its replicas run one by one (and one replica of n agents keeps the plain key).
     """
-    r = agent // per_replica
+    r = floor_quotient(agent, per_replica)
     return ti.cast(seed, ti.u32) + ti.cast(r, ti.u32), agent - r * per_replica
