@@ -17,6 +17,7 @@ import taichi as ti
 from tflock.components import Components, near, pair_sizes, pair_union
 from tflock.cpu_tasks import TASK_STRIDE, task_at
 from tflock.engine import current_engine
+from tflock.fastmath import sin_cos
 from tflock.lane_graph import count_roots
 from tflock.neighbors import (
     CellGrid,
@@ -52,9 +53,10 @@ def _angle_block(theta: ti.template(), n, reference, partial: ti.template(), blk
     c = 0.0
     s = 0.0
     gap = 0.0
-    for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):
-        c += ti.cos(theta[i])
-        s += ti.sin(theta[i])
+    for i in range(blk * BLOCK, ti.min(n, (blk + 1) * BLOCK)):  # polynomial sin/cos: the loop vectorises
+        sin_th, cos_th = sin_cos(theta[i])
+        c += cos_th
+        s += sin_th
         gap += ti.abs(wrap_pi(theta[i] - reference))
     partial[blk, 0] = c
     partial[blk, 1] = s
