@@ -17,9 +17,9 @@ in [0, 2 pi): 2e-7, where the C library's float32 functions err by 7e-8), 5e-16 
   y < 0, so atan2(+-0, -0) gives 0 (the C library gives +-pi): the two differ only for a zero vector.
 - floor_quotient: a // b of 32-bit integers as the floor of their float64 quotient. x86 has no vector integer
   division, so `a // b` in a lane loop runs one scalar division per lane (a Vicsek update of 1e6 agents spent 5 of
-  its 12 ms there); the float64 quotient is exact enough: for |a|, |b| < 2^31 with a/b not an integer, a/b lies at
-  least 1/|b| from the next integer, over 2^-31 of it relative to |a/b| < 2^31, far above float64's rounding
-  (2^-53), so its floor is the integer quotient.
+  its 12 ms there). The float64 quotient is exact enough: for |a|, |b| < 2^31 both are exact in float64, and
+  where a/b is not an integer it lies at least 1/|b| from the nearest one, a relative gap of at least 1/|a| > 2^-31,
+  far above the division's rounding (2^-53): its floor is the integer quotient.
 """
 
 import math
