@@ -84,6 +84,10 @@ class GridGeometry:
     total_buckets: int
     agents_per_replica: int
 
+    def __post_init__(self) -> None:
+        if self.boundary == OPEN and self.n_buckets & (self.n_buckets - 1):  # bucket_of_cell masks the hash
+            raise ValueError(f"an open-space grid needs a power of two of buckets, got {self.n_buckets}")
+
 
 def grid_geometry(n: int, dim: int, boundary: str, box: float, radius: float, replicas: int = 1,
                   at_most: bool = False) -> GridGeometry:
@@ -131,7 +135,8 @@ def bucket_of_cell(c, nc, n_buckets, boundary: ti.template(), dim: ti.template()
         h = ti.u32(0)
         for k in ti.static(range(dim)):
             h ^= ti.cast(c[k], ti.u32) * ti.u32(_HASH[k])
-        b = c[dim] * n_buckets + ti.cast(h % ti.u32(n_buckets), ti.i32)
+        # n_buckets is a power of two in open space (grid_geometry): the mask is h % n_buckets without a division
+        b = c[dim] * n_buckets + ti.cast(h & ti.u32(n_buckets - 1), ti.i32)
     else:
         b = c[dim]
         for k in ti.static(range(dim)):
