@@ -131,8 +131,9 @@ def _quotients(blocks: ti.i32, a: ti.types.ndarray(), b: ti.types.ndarray(), out
 
 
 def test_floor_quotient_is_floor_division(engine):
-    """Exact for every 32-bit pair: near-integer quotients at the top of the range (a = q b - 1, q b, q b + 1 for
-    large q and large b), negative dividends, and random pairs; a replica's key depends on it."""
+    """Exact for b >= 1 and |a| < 2^31 (what its callers pass: agent ids and replica sizes): quotients within one of
+    an integer near the top of the range (a = q b - 1, q b, q b + 1 with b large and with b small), negative
+    dividends, and random pairs; a replica's key depends on it."""
     rng = np.random.default_rng(0)
     top = 2**31 - 1
     b = np.concatenate([rng.integers(1, top, 4000), rng.integers(1, 100, 4000), np.full(8, top), np.arange(1, 9)])

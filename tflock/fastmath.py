@@ -15,16 +15,19 @@ in [0, 2 pi): 2e-7, where the C library's float32 functions err by 7e-8), 5e-16 
   leaving |u| <= tan(pi/8); atan u = u P(u^2) with P of degree 11, a Chebyshev least-squares fit of atan(u)/u on
   u^2 in [0, tan^2(pi/8)] (relative error 3e-16 there); then the octant is undone. The signs come from x < 0 and
   y < 0, so atan2(+-0, -0) gives 0 (the C library gives +-pi): the two differ only for a zero vector.
-- floor_quotient: a // b of 32-bit integers as the floor of their float64 quotient. x86 has no vector integer
-  division, so `a // b` in a lane loop runs one scalar division per lane (a Vicsek update of 1e6 agents spent 5 of
-  its 12 ms there). The float64 quotient is exact enough: for |a|, |b| < 2^31 both are exact in float64, and
-  where a/b is not an integer it lies at least 1/|b| from the nearest one, a relative gap of at least 1/|a| > 2^-31,
-  far above the division's rounding (2^-53): its floor is the integer quotient.
+- floor_quotient: a // b of 32-bit integers as the floor of their float64 quotient, on the CPU (GPU arches divide
+  integers). x86 has no vector integer division, so `a // b` in a lane loop runs one scalar division per lane (a
+  Vicsek update of 1e6 agents spent 5 of its 12 ms there). The float64 quotient is exact enough: for |a|, |b| < 2^31
+  both are exact in float64, and where a/b is not an integer it lies at least 1/|b| from the nearest one, a relative
+  gap of at least 1/|a| > 2^-31, far above the division's rounding (2^-53): its floor is the integer quotient.
 """
 
 import math
 
 import taichi as ti
+from taichi.lang import impl
+
+from tflock.taichi_host import CPU_ARCHES
 
 _SIN = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(1, 8))  # r^3 .. r^15
 _COS = tuple((-1) ** k / math.factorial(2 * k) for k in range(2, 9))  # r^4 .. r^16
@@ -79,8 +82,15 @@ def atan2(y, x):
 
 @ti.func
 def floor_quotient(a, b):
-    """a // b (floor division) for 32-bit integers, element-wise, through float64 (exact: see the module)."""
-    return ti.cast(ti.floor(ti.cast(a, ti.f64) / ti.cast(b, ti.f64)), ti.i32)
+    """a // b (floor division) for 32-bit integers with b >= 1 and |a| < 2^31, element-wise: on the CPU through
+    float64 (exact: see the module); GPU arches keep the integer division (no x86 vector units there, and a float64
+    division is slow on most GPUs)."""
+    q = a * 0
+    if ti.static(impl.current_cfg().arch in CPU_ARCHES):
+        q = ti.cast(ti.floor(ti.cast(a, ti.f64) / ti.cast(b, ti.f64)), ti.i32)
+    else:
+        q = a // b
+    return q
 
 
 @ti.func
