@@ -194,6 +194,11 @@ def _series_color(k: int, members: Sequence[Any]) -> dict[str, tuple[int, int, i
     return {"colors": SERIES_COLORS[k]} if 1 < len(members) <= len(SERIES_COLORS) else {}
 
 
+def _profile_title(name: str) -> str:
+    """A profile's name in words, as its tab and the about page show it ("band_profile" -> "band profile")."""
+    return name.replace("_", " ")
+
+
 def _markdown_text(text: str) -> str:
     """Plain text as Markdown shows it: its |, _, * and backslashes escaped (a description's |v_i| would otherwise
     be read as a table's cells or emphasis, a <N> as HTML)."""
@@ -466,7 +471,7 @@ class Recorder:
             left = rrb.Vertical(world_view, rrb.Horizontal(*projections), row_shares=[3, 1])
         metrics = self._metric_tabs(constant)
         # named in words, no legend (its one entry would be the entity path); the about page says what the bars are
-        profiles = [rrb.BarChartView(name=n.replace("_", " "), origin=f"/{PROFILES}/{n}",
+        profiles = [rrb.BarChartView(name=_profile_title(n), origin=f"/{PROFILES}/{n}",
                                      plot_legend=rrb.PlotLegend(visible=False)) for n in self.profiles]
         tabs = [*metrics, *profiles, rrb.TextDocumentView(name="about", origin=f"/{ABOUT}"),
                 rrb.TextDocumentView(name="config", origin=f"/{CONFIG}")]
@@ -574,7 +579,7 @@ class Recorder:
         if self.legend is not None:
             lines.append(f"- **{self.legend.title}**: see the colours view.")
         for name, description in self.profiles.items():
-            lines.append(f"- **{name.replace('_', ' ')}** (bar chart, a tab of its own): {description}; each bar at "
+            lines.append(f"- **{_profile_title(name)}** (bar chart, a tab of its own): {description}; each bar at "
                          "its slab's position along that axis, in the box's coordinates")
         # a list, not a table: the viewer does not wrap a table's cells (descriptions were cut at the view's edge)
         lines += ["", "# Metrics", "", "Each plot, and the metrics it draws (`name` in the metrics table):", ""]

@@ -263,6 +263,11 @@ def value_text(value: Any) -> str:
     return repr(value)
 
 
+#: a run config's top-level keys that a sweep file does not have (one given to `tflock sweep` is named as such)
+_RUN_KEYS = frozenset(f.alias or n for n, f in Config.model_fields.items()) - frozenset(
+    f.alias or n for n, f in SweepSpec.model_fields.items())
+
+
 def _spec_error_text(error: ValidationError) -> str:
     """The first error of a sweep file as one line, ``<key>: <what is allowed>, got <value>``."""
     first = error.errors()[0]
@@ -271,7 +276,7 @@ def _spec_error_text(error: ValidationError) -> str:
     if kind == "extra_forbidden":
         allowed = ", ".join(field.alias or name for name, field in SweepSpec.model_fields.items())
         text = f"{key}: unknown key; allowed: {allowed}"
-        if key in ("params", "log", "engine", "steps"):  # a run's keys: not a sweep file
+        if key in _RUN_KEYS:  # a run config's keys: not a sweep file
             text += " (this looks like a run config, which `tflock sim --config` runs; a sweep file names its base "\
                     "config and the values to sweep)"
     elif kind == "missing":
