@@ -871,19 +871,24 @@ class SubsetDrawing:
 
 
 @ti.kernel
-def _lower_pairs(rows: ti.i32, slot_of: ti.types.ndarray(), radius: float, box: float, nc: ti.i32,
+def _lower_pairs(rows: ti.i32, n: ti.i32, radius: float, box: float, nc: ti.i32,
                  n_buckets: ti.i32, boundary: ti.template(), dim: ti.template(), start: ti.types.ndarray(),
                  mixed: ti.types.ndarray(), id_sorted: ti.types.ndarray(), pos_sorted: ti.types.ndarray(),
                  coords_sorted: ti.types.ndarray(), counts: ti.types.ndarray(), offsets: ti.types.ndarray(),
                  fill: ti.i32, edges: ti.types.ndarray()):
     """Count (fill = 0) or write (fill = 1, from `offsets`) each row's pairs with the earlier rows within R, for
-    rows 0 .. rows - 1 of a grid whose agent ids are the rows (a run-time flag: one kernel for both passes).
-    An edge goes from the row's position to the earlier row's nearest image (minimum image when periodic)."""
-    for r in range(rows):
+    rows 0 .. rows - 1 of a grid of n >= rows agents whose ids are the rows (a run-time flag: one kernel for both
+    passes).
+    An edge goes from the row's position to the earlier row's nearest image (minimum image when periodic).
+    The rows are taken in the grid's slot order, so that neighbouring rows' stencils share the cache (in row order
+    each row's cells are a random read); each row's edges come out in the same order either way."""
+    for s in range(n):
+        r = id_sorted[s]
+        if r >= rows:  # a row past the pass's (the write pass takes the rows whose edges fit)
+            continue
         e = 0
         if fill:
             e = offsets[r]
-        s = slot_of[r]
         p = load_vec(pos_sorted, s, dim)
         c = load_cell(coords_sorted, s, dim)
         for o in range(ti.static(span_count(boundary, dim))):
@@ -994,5 +999,5 @@ class DrawnEdges:
 
     def _arguments(self, grid: CellGrid) -> tuple:
         g = grid.geometry
-        return (grid.slots(), self.radius, self.box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
+        return (grid.n, self.radius, self.box, g.cells_per_side, g.n_buckets, g.boundary, g.dim, grid.start,
                 grid.mixed, grid.id_sorted, grid.pos_sorted, grid.coords_sorted)
