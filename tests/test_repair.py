@@ -101,6 +101,17 @@ def test_a_recording_cut_mid_message_is_repaired_up_to_the_cut(killed: Path, tmp
     assert verify_recording(cut) and steps == list(range(len(steps))) and steps
 
 
+def test_a_recording_cut_before_the_runs_description_says_so(killed: Path, tmp_path: Path) -> None:
+    """A file cut within its first Rerun messages repairs to a valid recording that holds none of the run's
+    description: repair says so, rather than send the user from inspect to repair and back."""
+    cut = tmp_path / "early.rrd"
+    cut.write_bytes((killed / "k.rrd").read_bytes()[:3000])
+    result = invoke_in(tmp_path, ["repair", "early.rrd"])
+    assert result.exit_code == 0 and verify_recording(cut)
+    assert "holds no tflock run's description" in result.output and "`rerun early.rrd` shows what it holds" in \
+        " ".join(result.output.split())
+
+
 def test_a_recording_a_run_still_writes_is_refused(killed: Path, tmp_path: Path) -> None:
     folder = copy_of(killed, tmp_path)
     held = outputs.lock(folder / "k.rrd")

@@ -293,8 +293,9 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
 @app.command()
 def models() -> None:
     """List the models."""
+    width = max(map(len, MODEL_DESCRIPTIONS))
     for name, description in MODEL_DESCRIPTIONS.items():
-        out.print(f"[bold]{name}[/]  {description}", highlight=False, soft_wrap=True)
+        out.print(f"[bold]{name:<{width}}[/]  {description}", highlight=False, soft_wrap=True)
 
 
 @config_app.command("show")
@@ -399,6 +400,11 @@ def repair(
                   soft_wrap=True)
         return
     out.print(f"repaired {result.path} (rerun rrd verify passes){held}", highlight=False, soft_wrap=True)
+    if summary is None:  # whole Rerun messages, but none of a tflock run's description
+        out.print(f"it holds no tflock run's description (no /meta model or /config document: the run was cut "
+                  f"before it wrote them), so `tflock inspect` cannot read it; `rerun {result.path}` shows what it "
+                  "holds", highlight=False, soft_wrap=True)
+        return
     table = path.with_suffix(".metrics.csv")
     last = _last_table_step(table)
     if last is not None and summary is not None:
@@ -544,7 +550,7 @@ def bench(
         table.add_row(c.model, f"{c.n:,}", c.state, *((engines[r.engine],) if engines else ()),
                       f"{r.mean_neighbors:.1f}",
                       f"{r.ms_median:.2f} ({r.ms_min:.2f}-{r.ms_max:.2f})",
-                      f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {r.run_overhead:+.0%})",
+                      f"{r.run_ms_median:.2f} ({r.run_ms_min:.2f}-{r.run_ms_max:.2f}, {1 + r.run_overhead:.2f}x)",
                       logged, f"{r.agent_steps_per_s:.3g}",
                       opt(r.build_ms), opt(r.interactions_ms), f"{r.metrics_ms:.1f}", opt(r.logging_ms),
                       f"{r.first_step_s:.2f} s", f"{r.device_bytes_per_agent:.0f}", peer_text)

@@ -462,7 +462,12 @@ def _one_error_text(error: ErrorDetails, model: Any) -> str:
     key = ".".join(loc) or "config"
     if kind == "extra_forbidden":
         allowed = ", ".join(sorted(schema.model_fields)) if schema is not None else "(unknown)"
-        return f"{key}: unknown key; allowed: {allowed}"
+        text = f"{key}: unknown key; allowed: {allowed}"
+        from tflock.sweep.spec import SWEEP_KEYS  # (here: the sweep spec's module imports this one)
+
+        if len(loc) == 1 and key in SWEEP_KEYS:  # a sweep file's keys: not a run config
+            text += " (this looks like a sweep file, which `tflock sweep FILE` runs)"
+        return text
     if kind == "missing":
         return f"{key}: required key is missing"
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):

@@ -492,12 +492,19 @@ class Simulation:
         """The metrics table so far, as columns (``step``, ``time`` and one per metric): ``pd.DataFrame(...)``.
 
         The run keeps its table in bounded memory (one block of rows; the rest in a temporary file, see
-        :mod:`tflock.metric_rows`): this reads it back, so its arrays take memory only once asked for."""
-        return self._table.columns()
+        :mod:`tflock.metric_rows`): this reads it back, so its arrays take memory only once asked for. ``step`` is
+        an integer column, the others float64."""
+        columns = self._table.columns()
+        columns["step"] = columns["step"].astype(np.int64)  # (kept as float64 with the rest of a row)
+        return columns
 
     def last_metrics(self) -> dict[str, float] | None:
-        """The last row of the metrics table (``step``, ``time`` and one value per metric), or None before any."""
-        return self._table.last()
+        """The last row of the metrics table (``step`` an int, ``time`` and one float per metric), or None before
+        any."""
+        row = self._table.last()
+        if row is not None:
+            row["step"] = int(row["step"])
+        return row
 
     def checkpoint_now(self, announce: Callable[[Path, int], None] | None = None) -> Path | None:
         """Where the run writes checkpoints (``checkpoint_every``): the current state, guarded, saved to its

@@ -266,6 +266,9 @@ def value_text(value: Any) -> str:
 #: a run config's top-level keys that a sweep file does not have (one given to `tflock sweep` is named as such)
 _RUN_KEYS = frozenset(f.alias or n for n, f in Config.model_fields.items()) - frozenset(
     f.alias or n for n, f in SweepSpec.model_fields.items())
+#: the keys of a sweep file that a run config lacks (a sweep file given to `tflock sim --config` says so)
+SWEEP_KEYS = frozenset(f.alias or n for n, f in SweepSpec.model_fields.items()) - frozenset(
+    f.alias or n for n, f in Config.model_fields.items())
 
 
 def _spec_error_text(error: ValidationError) -> str:
