@@ -248,6 +248,21 @@ def test_help(tmp_path: Path, args: list[str]) -> None:
     assert ("--set" if args[0] == "sim" else "sim") in result.stdout
 
 
+def test_help_gives_flags_no_value_type() -> None:
+    """A flag takes no value: its help row shows no type (typer 0.2x printed ``<bool>`` beside ``--quick``,
+    ``--no-log`` and ``--help``, as if they took one); options that take a value keep theirs."""
+    import typer
+    from typer.testing import CliRunner
+
+    from tflock.cli import app
+
+    for name in typer.main.get_command(app).commands:
+        shown = CliRunner().invoke(app, [name, "--help"], env={"COLUMNS": "1000"}).output
+        assert "--help" in shown and "<bool>" not in shown.lower(), f"tflock {name} --help"
+    sim = CliRunner().invoke(app, ["sim", "--help"], env={"COLUMNS": "1000"}).output
+    assert re.search(r"--steps\s+\S+", sim), "an option with a value keeps its type"
+
+
 def test_help_shows_the_brackets_of_every_option() -> None:
     """Rich reads [...] in a help text as markup and drops it: every option's help shows its brackets (defaults,
     extras) as written (``\\[`` in the source)."""

@@ -215,6 +215,19 @@ def test_cli_interruption_counts_the_points_on_disk(sweep_file: Path, monkeypatc
     assert f"interrupted: 2 of {len(load_sweep(sweep_file).points)} points saved" in result.output
 
 
+def test_cli_says_when_every_point_was_read_back(reference: pd.DataFrame, sweep_file: Path) -> None:
+    """With every point on disk nothing runs, so no scheduler is reached: the summary says that, not that the points
+    ran on Dask at the address given (a new user's unreachable --scheduler was reported as where the sweep ran)."""
+    from conftest import invoke_in
+
+    out = sweep_file.parent / "out"
+    run_sweep(sweep_file, out=out)
+    result = invoke_in(sweep_file.parent, ["sweep", sweep_file.name, "--out", "out", "--scheduler", "tcp://127.0.0.1:1"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "nothing to compute (every point read back)" in text and "Dask at" not in text
+
+
 def test_a_changed_sweep_does_not_reuse_stale_points(reference: pd.DataFrame, sweep_file: Path) -> None:
     out = sweep_file.parent / "out"
     run_sweep(sweep_file, out=out)

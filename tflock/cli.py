@@ -8,12 +8,14 @@ recording up to the last logged frame.
 
 from __future__ import annotations
 
+import functools
 import gc
 import json
 import signal
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from importlib import import_module
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -54,6 +56,22 @@ class _OneLineUsageErrors(TyperGroup):
             sys.exit(1)
         sys.exit(code if isinstance(code, int) else 0)
 
+
+def _flag_type(display: Callable[[Any, Any], str | None]) -> Callable[[Any, Any], str | None]:
+    """Typer's help column of an option's type, empty for a flag (from typer 0.2x it prints ``<bool>`` beside
+    ``--quick`` or ``--help``, which take no value)."""
+
+    @functools.wraps(display)
+    def flag_type(option: Any, ctx: Any) -> str | None:
+        if getattr(option, "is_flag", False) and not getattr(option, "count", False):
+            return None
+        return display(option, ctx)
+
+    return flag_type
+
+
+if hasattr(typer.core, "TyperOption") and hasattr(typer.core.TyperOption, "display_type_rich"):
+    typer.core.TyperOption.display_type_rich = _flag_type(typer.core.TyperOption.display_type_rich)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, cls=_OneLineUsageErrors,
                   help="Large-N flocking simulation on Taichi, recorded to Rerun.")
@@ -609,7 +627,7 @@ def sweep(
     summary.add_row("points", f"{info['points']} ({info['computed']} computed, {info['loaded']} from earlier runs)")
     summary.add_row("replicas", f"{info['replicas']} per point (seeds {plan.seed} .. {plan.seed + plan.replicas - 1})")
     summary.add_row("rows", f"{len(table)} x {len(table.columns)} columns")
-    summary.add_row("ran", where)
+    summary.add_row("ran", where if info["computed"] else "nothing to compute (every point read back)")
     summary.add_row("wall time", f"{time.perf_counter() - t_start:.1f} s")
     for path in [*info["files"], folder / "points"]:
         summary.add_row("wrote", str(path))

@@ -1211,7 +1211,10 @@ def open_viewer(path: Path, web: bool = False, port: int | None = None, grpc_por
                 "the native viewer needs a display (no DISPLAY is set); use `tflock view --web`"
             )
         cmd = [*rerun_executable(), str(path)]
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
+    # Rerun's own log at warnings and above (unless RUST_LOG says otherwise): its info lines, with colour codes and a
+    # second address of its own, buried the one printed above
+    env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env)
     try:
         proc.wait()
     except KeyboardInterrupt:
