@@ -721,6 +721,24 @@ def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) ->
     assert {"updated", "components"} <= set(_layout_names(path, "SeriesLines:names"))
 
 
+def test_a_plot_of_more_series_than_a_legend_holds_says_how_to_find_their_names(tmp_path: Path) -> None:
+    """Vicsek's number fluctuations (7 box sizes, one plot) and a fixed graph's constant valencies (16 flat lines in
+    one strip) are too many for a legend: their titles say how many lines there are and that hovering one names it
+    (a new user saw 16 unnamed lines, and 7 in gnf_std)."""
+    path = tmp_path / "many.rrd"
+    boxes = [f"gnf_std_{m}" for m in (4, 8, 16, 32, 64, 128, 256)]
+    constants = [f"valency_{i}" for i in range(9)]
+    metrics = {name: name for name in [*boxes, *constants]}
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path) as rec:
+        for step in range(4):
+            rec.log_metrics(step, {**{b: 0.1 * step + k for k, b in enumerate(boxes)}, **dict.fromkeys(constants, 2.0)})
+        names = [plot.name for plot in rec._plots(rec.constant_metrics())]
+        assert names == ["gnf_std (hover names)", "constant: 9 series (hover a line for its name)"]
+    legends = _plot_components(path)
+    assert legends["gnf_std (hover names)"]["PlotLegend:visible"] == [False]
+    assert legends["constant: 9 series (hover a line for its name)"]["PlotLegend:visible"] == [False]
+
+
 def test_legend_names_level_with_their_swatches(tmp_path: Path) -> None:
     """The colours view's names sit level with what they name and right of it: each category's name at its dot's
     height (the viewer hangs a label below its point, so the point is raised by LABEL_RISE) starting right of the

@@ -253,6 +253,9 @@ SWATCH_STEP = 0.45
 #: plots in a tab at most (3 rows of 2; about 150 px a plot at 1280 x 800, where 12 left about 70 px, too little for
 #: their axis labels): more go to tabs "metrics 2", "metrics 3"
 PLOTS_PER_TAB = 6
+#: series a plot's legend names at most: more would not fit a plot of the grid (about 150 px high) and cover its
+#: lines; the title of a plot of more says how to find their names (hover a line)
+LEGEND_MAX = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
 def legend_corner(series: list[tuple[list[int], list[float]]], y_range: tuple[float, float] | None = None) -> str:
@@ -519,14 +522,19 @@ class Recorder:
             members = groups[group]
             names = [m for m, _ in members]
             y_range = self._y_range(names)
+            title = group if len(names) <= LEGEND_MAX else f"{group} (hover names)"
             views.append(rrb.TimeSeriesView(
-                name=group, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
+                name=title, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
                 plot_legend=self._legend(names, y_range), axis_x=WHOLE_RUN,
                 axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range)))
         if constant:  # one: named in the title; more: named in the legend (a long title is cut off), by their full
-            # names: a series' short name is that of its group's plot ("min" of valency_min)
+            # names: a series' short name is that of its group's plot ("min" of valency_min); too many for a legend:
+            # the title says how to find them
+            title = "constant" + (f": {constant[0]}" if len(constant) == 1 else "")
+            if len(constant) > LEGEND_MAX:
+                title = f"constant: {len(constant)} series (hover a line for its name)"
             views.append(rrb.TimeSeriesView(
-                name="constant" + (f": {constant[0]}" if len(constant) == 1 else ""), origin=f"/{METRICS}",
+                name=title, origin=f"/{METRICS}",
                 contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant), None),
                 axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m, **_series_color(k, constant))
                                              for k, m in enumerate(constant)}))
@@ -540,9 +548,9 @@ class Recorder:
         return labelled_range(min(lo for lo, _ in extents), max(hi for _, hi in extents))
 
     def _legend(self, members: list[str], y_range: tuple[float, float] | None) -> rrb.PlotLegend:
-        """A plot's legend: shown for 2 to 6 series, in the corner where it covers the fewest of their points so far
-        (:func:`legend_corner`) on the plot's y range (None: the viewer's fit)."""
-        if not 1 < len(members) <= 6:
+        """A plot's legend: shown for 2 to LEGEND_MAX series, in the corner where it covers the fewest of their points
+        so far (:func:`legend_corner`) on the plot's y range (None: the viewer's fit)."""
+        if not 1 < len(members) <= LEGEND_MAX:
             return rrb.PlotLegend(visible=False)
         corner = legend_corner([self._rows.series(m) for m in members], y_range)
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
