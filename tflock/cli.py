@@ -425,7 +425,7 @@ def repair(
         return
     table = path.with_suffix(".metrics.csv")
     last = _last_table_step(table)
-    if last is not None and summary is not None:
+    if last is not None:
         out.print(f"its metrics table {table} has rows up to step {last} (the recording's last metrics may be a "
                   "fraction of a second older)", highlight=False, soft_wrap=True)
 
