@@ -263,12 +263,12 @@ def value_text(value: Any) -> str:
     return repr(value)
 
 
+_CONFIG_KEYS = frozenset(f.alias or n for n, f in Config.model_fields.items())
+_SPEC_KEYS = frozenset(f.alias or n for n, f in SweepSpec.model_fields.items())
 #: a run config's top-level keys that a sweep file does not have (one given to `tflock sweep` is named as such)
-_RUN_KEYS = frozenset(f.alias or n for n, f in Config.model_fields.items()) - frozenset(
-    f.alias or n for n, f in SweepSpec.model_fields.items())
+_RUN_KEYS = _CONFIG_KEYS - _SPEC_KEYS
 #: the keys of a sweep file that a run config lacks (a sweep file given to `tflock sim --config` says so)
-SWEEP_KEYS = frozenset(f.alias or n for n, f in SweepSpec.model_fields.items()) - frozenset(
-    f.alias or n for n, f in Config.model_fields.items())
+SWEEP_KEYS = _SPEC_KEYS - _CONFIG_KEYS
 
 
 def _spec_error_text(error: ValidationError) -> str:
