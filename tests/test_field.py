@@ -181,6 +181,31 @@ def test_3d_projections_take_the_agents_hue(engine, cells: bool) -> None:
         assert np.all((filled - 1) % 2 == 1)  # ordered
 
 
+def test_order_is_not_found_by_chance(engine) -> None:
+    """A pixel is ordered only where its agents' directions are unlikely to line up by chance (Rayleigh's test,
+    c R^2 >= 3, beside R >= 0.5): a gas of random headings at 6 agents a pixel (Poisson counts) has at most a few
+    per cent of its pixels ordered (R >= 0.5 alone: about a quarter, in random hues: a pixel of one agent always,
+    of two in two thirds), while a polarised flock (headings spread 0.3 rad) has every pixel of 5 agents or more
+    ordered."""
+    rng = np.random.default_rng(11)
+    size, box = 32, 32.0
+    n = 6 * size * size
+    pos = (rng.random((n, 2)) * box).astype(np.float32)
+    for spread, ordered_share in ((None, (0.0, 0.06)), (0.3, (0.75, 1.0))):
+        angle = rng.uniform(0, 2 * math.pi, n) if spread is None else rng.normal(1.0, spread, n)
+        d = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
+        (image,) = Field(n, 2, size).compute(upload(pos.T), upload(d.T), box=box, bounded=True, mode=VECTORS)
+        classes, counts = reference_field(pos, d, np.zeros(2), box / size, size, normalise=True)
+        np.testing.assert_array_equal(image.classes, classes[0])
+        filled = image.classes > 0
+        ordered = filled & ((image.classes.astype(int) - 1) % 2 == 1)
+        share = ordered.sum() / filled.sum()
+        assert ordered_share[0] <= share <= ordered_share[1], (spread, share)
+        assert not ordered[counts[0] <= 3].any()  # three directions or fewer: no evidence of order
+        if spread is not None:
+            assert ordered[counts[0] >= 5].all()
+
+
 def test_classes_and_default_size() -> None:
     colors = class_colors()
     assert colors.shape == (CLASSES, 4) and CLASSES <= 256  # fits a uint8 image

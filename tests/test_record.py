@@ -182,6 +182,47 @@ def test_heading_colors() -> None:
     assert rgb.tolist() == [[255, 0, 0], [0, 255, 0], [0, 0, 255], [0, 0, 255], [0, 255, 255]]
 
 
+def test_slow_agents_arrows_are_drawn_long_enough_to_show_their_heading() -> None:
+    """An arrow is the velocity relative to the reference speed, `length` per unit, but at least MIN_ARROW of a
+    full-speed arrow, along the agent's heading: a Tanner swarm slowed to a tenth of its initial speed drew 2 px stubs.
+    An agent at rest draws no arrow; faster agents keep their proportional length."""
+    from tflock.frame import MIN_ARROW, drawn_arrows
+
+    d = np.array([[0.1, 0.0], [0.0, -0.05], [0.6, 0.8], [0.0, 0.0], [1.5, 0.0], [0.2, 0.2]], np.float32)
+    vectors = drawn_arrows(d, 3.0)
+    assert vectors.dtype == np.float32
+    np.testing.assert_allclose(vectors[[0, 1, 3, 4]], [[3.0 * MIN_ARROW, 0], [0, -3.0 * MIN_ARROW], [0, 0], [4.5, 0]],
+                               rtol=1e-6)
+    np.testing.assert_allclose(vectors[2], [1.8, 2.4], rtol=1e-6)  # full speed: unchanged
+    np.testing.assert_allclose(np.linalg.norm(vectors[5]), 3.0 * MIN_ARROW, rtol=1e-6)  # heading kept: 45 degrees
+    assert vectors[5, 0] == pytest.approx(vectors[5, 1])
+    assert d[0, 0] == np.float32(0.1)  # the frame's directions are not changed
+
+
+def test_open_space_view_keeps_every_drawn_agent_and_arrow_inside_a_margin() -> None:
+    """The viewer frames an open-space 2D view on each entity's region of interest, mean +- 2 standard deviations
+    per axis (Rerun's RobustBounds): the agents' own cut an outlying agent in half. world/extent's two points must
+    have as region the box of every agent and arrow tip, padded by VIEW_MARGIN of the extent (and no wider: a
+    region twice too wide left the swarm small in the middle of the view)."""
+    from tflock.record import VIEW_MARGIN, view_corners
+
+    rng = np.random.default_rng(3)
+    pos = rng.normal(size=(40, 2)).astype(np.float32)
+    pos[0] = (9.0, -7.0)  # an outlier the agents' own region of interest leaves out
+    vectors = rng.normal(scale=0.1, size=(40, 2)).astype(np.float32)
+    corners = view_corners(pos, vectors)
+    assert corners.shape == (2, 2) and corners.dtype == np.float32
+    mean, sigma = corners.mean(axis=0), corners.std(axis=0)
+    low, high = mean - 2 * sigma, mean + 2 * sigma
+    points = np.concatenate([pos, pos + vectors])
+    extent = points.max(axis=0) - points.min(axis=0)
+    pad = VIEW_MARGIN * extent.max()
+    np.testing.assert_allclose(low, points.min(axis=0) - pad, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(high, points.max(axis=0) + pad, rtol=1e-5, atol=1e-5)
+    agents_mean, agents_sigma = pos.mean(axis=0), pos.std(axis=0)
+    assert pos[0, 0] > agents_mean[0] + 2 * agents_sigma[0]  # the agents' region alone would cut it
+
+
 @pytest.mark.parametrize("bad", ["file", "proc"])
 def test_unwritable_path_raises_before_logging(tmp_path: Path, bad: str) -> None:
     blocker = tmp_path / "a_file"
@@ -629,7 +670,7 @@ def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, pa
     arrows of the move just made relative to the reference speed (the one convention), edges joining drawn agents
     only (potential's fixed graph: edges of that graph), and the field of all agents: one image in 2D, three
     projections in 3D, each of all N agents."""
-    from tflock.frame import arrow_length
+    from tflock.frame import MIN_ARROW, arrow_length
     from tflock.record import point_radius
 
     path = tmp_path / f"{model}.rrd"
@@ -667,8 +708,17 @@ def test_every_models_recording_content(make_sim, tmp_path: Path, model: str, pa
     length = arrow_length(world.box, drawn_count, dim, spread=pos if world.boundary == "open" else None)
     assert _last(batches["/world/agents/headings"], "arrow_length") == pytest.approx([length])
     expected = moved / world.dt / getattr(p, speed_name) * length
+    norm = np.linalg.norm(expected, axis=1, keepdims=True)  # a slow agent's arrow drawn MIN_ARROW long at least
+    expected *= np.where(norm > 0, np.maximum(norm, MIN_ARROW * length) / np.maximum(norm, 1e-30), 0.0)
     np.testing.assert_allclose(vectors, expected, atol=2e-3 * length)
     assert np.max(np.linalg.norm(vectors, axis=1)) > 0.3 * length  # drawn, not vanishing
+    if world.boundary == "open" and dim == 2:  # the view's frame: every drawn agent and arrow tip inside
+        corners = np.array(_last(batches["/world/extent"], "Points2D:positions"))
+        low, high = corners.mean(axis=0) - 2 * corners.std(axis=0), corners.mean(axis=0) + 2 * corners.std(axis=0)
+        inside = np.concatenate([pos, pos + vectors])
+        assert np.all(inside > low) and np.all(inside < high)
+    else:
+        assert "/world/extent" not in batches
 
     # edges: both ends are drawn agents (the far end up to the periodic box), at most the cap
     strips = np.array(_last(batches["/world/edges"], f"LineStrips{dim}D:strips"))

@@ -8,8 +8,11 @@ the square around all agents) and gives each pixel one of :data:`CLASSES` colour
   +x), the same hue wheel the agents are coloured with (:func:`tflock.frame.angle_colors`);
 * brightness: the pixel's agent count against the mean count ``N / size^2`` (``DENSITY_LEVELS`` levels: at most
   1/2 of the mean, 1, 2, 4 times the mean, more);
-* saturation: ordered pixels (length of the mean unit direction >= :data:`ORDERED`) are saturated, disordered ones
-  greyish.
+* saturation: ordered pixels are saturated, disordered ones greyish. A pixel is ordered when the length R of its c
+  agents' mean unit direction is at least :data:`ORDERED` and at least sqrt(:data:`CHANCE_Z` / c): the second is
+  Rayleigh's test, c R^2 >= 3, which c random directions pass in at most about 5 % of pixels (e^-3), where R >= 0.5
+  alone passes a pixel of one agent always, of two in 2/3 and of six in 23 % (a disordered gas at a few agents a
+  pixel looked ordered, in random hues). A pixel of three agents or fewer is never ordered.
 
 Class 0 is an empty pixel. In 3D the field is three projections (planes xy, xz, yz) of the agents' positions; in
 each the hue is the direction of the agents' headings projected onto the xy plane (their azimuth), as the agents
@@ -39,8 +42,10 @@ DENSITY_LEVELS = 5
 ORDER_LEVELS = 2
 #: colour classes of a pixel: 0 (empty) and one per (hue, density level, order level)
 CLASSES = 1 + HUES * DENSITY_LEVELS * ORDER_LEVELS
-#: a pixel is ordered when the length of its agents' mean unit direction is at least this
+#: a pixel is ordered when the length of its agents' mean unit direction is at least this ...
 ORDERED = 0.5
+#: ... and its c agents' Rayleigh statistic c R^2 at least this: random directions pass in about e^-3 = 5 % of pixels
+CHANCE_Z = 3.0
 #: fixed-point units of a unit direction's component in the pixel sums
 DIRECTION_SCALE = 1024
 #: the planes of a 3D field (axes of each projection); a 2D field has the first only
@@ -252,7 +257,7 @@ def _classify_pixel(c, sx, sy, n_agents, units, pixel_units):
         fx = ti.cast(sx, ti.f64)
         fy = ti.cast(sy, ti.f64)
         length = ti.sqrt(fx * fx + fy * fy) / (ti.cast(c, ti.f64) * DIRECTION_SCALE)
-        ordered = ti.select(length >= ORDERED, 1, 0)
+        ordered = ti.select(length >= ti.max(ORDERED, ti.sqrt(CHANCE_Z / ti.cast(c, ti.f64))), 1, 0)
         hue = 0
         if fx != 0 or fy != 0:
             hue = _hue(fx, fy)
@@ -494,7 +499,7 @@ def _reference_class(c: int, sx: int, sy: int, n_agents: int, units: int, pixel_
     for q in range(DENSITY_LEVELS - 2, -1, -1):
         if 2 * c * units <= _DENSITY_HALVES[q] * n_agents * pixel_units:
             level = q
-    ordered = int(math.hypot(sx, sy) / (c * DIRECTION_SCALE) >= ORDERED)
+    ordered = int(math.hypot(sx, sy) / (c * DIRECTION_SCALE) >= max(ORDERED, math.sqrt(CHANCE_Z / c)))
     hue = 0
     if sx or sy:
         hue = math.floor(math.atan2(sy, sx) * (HUES / (2 * math.pi)) + 0.5) % HUES

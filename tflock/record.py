@@ -10,7 +10,8 @@ default view (docs/recordings.md shows and explains it):
   id), ``world/agents/headings`` (Arrows2D/3D, the velocity over the step just made, with the frame's
   ``arrow_length``, see :mod:`tflock.frame`), ``world/agents/trails`` (optional), ``world/edges`` (thin translucent
   LineStrips among the drawn agents), ``world/leader`` (+ ``world/leader/heading``), ``world/<marker>``,
-  ``world/bounds`` (static); in 2D ``world`` carries a transform that flips y, so that y points up as in the
+  ``world/bounds`` (static), ``world/extent`` (open space, 2D: invisible points that frame the view, see
+  :func:`view_corners`); in 2D ``world`` carries a transform that flips y, so that y points up as in the
   simulation's frame;
 * the coarse-grained field of all agents (:mod:`tflock.field`): a SegmentationImage under the agents at
   ``world/field`` (2D), or three projections ``field/xy``, ``field/xz``, ``field/yz`` beside the 3D view;
@@ -58,12 +59,14 @@ from tflock.field import CLASSES, FieldImage, class_colors, class_labels, class_
 from tflock.frame import (
     BOUNDARIES,
     LEADER_COLOR,
+    MIN_ARROW,
     RADIUS_EDGES,
     ColorLegend,
     Frame,
     Marker,
     WorldSpec,
     angle_colors,
+    drawn_arrows,
     heading_colors,
 )
 from tflock.frame_columns import GATHER_AGENTS, FrameColumns, Shape, line_strips, time_columns
@@ -92,6 +95,7 @@ EDGES = "world/edges"
 LEADER = "world/leader"
 LEADER_HEADING = "world/leader/heading"
 BOUNDS = "world/bounds"
+VIEW_EXTENT = "world/extent"
 FIELD_2D = "world/field"
 FIELD_3D = "field"
 LEGEND = "legend"
@@ -186,6 +190,33 @@ _INDEXED = re.compile(r"^(.+)_(\d+)$")
 #: what the number of an indexed series ``<base>_<i>`` is, where it is not an agent id: base -> series name
 #: (``gnf_std_8``: the number fluctuations in boxes of side L/8, :mod:`tflock.observables`)
 INDEX_NAMES = {"gnf_std": "box L/{}"}
+
+
+#: the margin the open-space world view keeps around the drawn agents, as a fraction of their extent
+VIEW_MARGIN = 0.06
+
+
+def view_corners(pos: np.ndarray, vectors: np.ndarray) -> np.ndarray | None:
+    """(2, dim) float32 points whose region of interest in the viewer is the box an open-space 2D view should show:
+    the drawn agents and their arrows' tips, with :data:`VIEW_MARGIN` of their extent (at least one arrow's length)
+    around them. The viewer frames a 2D view without set bounds on the union of its entities' regions of interest,
+    each the mean +- 2 standard deviations of the entity's points per axis (Rerun 0.41, ``RobustBounds``): the
+    agents' alone cut an agent at the swarm's edge in half. Two points at the box's centre +- a quarter of its
+    sides have mean the centre and standard deviation half of each half-side, so their region is the box itself;
+    they are logged invisible (``world/extent``). None where no drawn agent is finite (float32 frames of a float64
+    run far out)."""
+    pos, vectors = pos.astype(np.float64), vectors.astype(np.float64)  # float32's range: no overflow below
+    finite = np.isfinite(pos).all(axis=1) & np.isfinite(vectors).all(axis=1)
+    if not finite.any():
+        return None
+    pos, vectors = pos[finite], vectors[finite]
+    points = np.concatenate([pos, pos + vectors])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    arrow = float(np.sqrt(np.einsum("ij,ij->i", vectors, vectors).max()))
+    pad = max(VIEW_MARGIN * float((hi - lo).max()), arrow, 1e-6)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2 + pad
+    big = float(np.finfo(np.float32).max)
+    return np.clip(np.stack([centre - half / 2, centre + half / 2]), -big, big).astype(np.float32)
 
 
 def _series_color(k: int, members: Sequence[Any]) -> dict[str, tuple[int, int, int]]:
@@ -570,7 +601,8 @@ class Recorder:
                          f"the world's own.")
         lines.append("")
         lines.append("- **arrows**: each agent's velocity over the step just made, relative to the model's reference "
-                     "speed (a full-speed agent's arrow has the same length in every frame).")
+                     "speed (a full-speed agent's arrow has the same length in every frame); a slower agent's arrow is "
+                     f"at least {MIN_ARROW:.2g} of a full-speed one, so that its heading stays readable.")
         lines.append(f"- **edges**: {self.edges} (the graph induced on the first drawn agents, as many as the edge "
                      "cap allows).")
         if self.field:
@@ -769,7 +801,7 @@ class Recorder:
         rec = self.rec
         self._set_time(step)
         self._log_ids(frame.ids, pos.shape[0])
-        vectors = dirs * np.float32(frame.arrow_length)
+        vectors = drawn_arrows(dirs, frame.arrow_length)
         agent_style = {"radii": rr.Radius.ui_points(radius), **order}
         arrow_style = {"radii": rr.Radius.ui_points(max(0.5, 0.4 * radius)),
                        **({"draw_order": DRAW_ARROWS} if dim == 2 else {})}
@@ -820,6 +852,9 @@ class Recorder:
                 self._leader_heading_drawn = True
         for marker in frame.markers:
             self._log_marker(shapes, marker, Points, Arrows, Strips, radius, frame.arrow_length)
+        corners = view_corners(pos, vectors) if dim == 2 and not self.world.bounded and len(pos) else None
+        if corners is not None:
+            self._draw(shapes, VIEW_EXTENT, Points, {"positions": corners}, {"colors": (0, 0, 0, 0), "radii": 0.0})
         for image in frame.fields:
             self._log_field(image)
         for name, values in frame.profiles.items():
