@@ -32,6 +32,7 @@ def test_list_names_every_experiment():
     assert result.exit_code == 0
     for name in EXPERIMENTS:
         assert name in result.output
+    assert "…" not in result.output  # every source whole: a paper's file name wrapped, not cut to "papers/00…"
 
 
 def test_unknown_experiment_is_one_line_and_exit_2():

@@ -653,7 +653,7 @@ def reproduce(
         listing = Table(title="tflock reproduce NAME", show_header=True)
         listing.add_column("name", style="bold")
         listing.add_column("experiment")
-        listing.add_column("source")
+        listing.add_column("source", overflow="fold")  # a paper's file name whole, wrapped, not cut to "papers/00…"
         for key in sorted(EXPERIMENTS):
             exp = experiment(key)
             listing.add_row(key, exp.title, exp.source)
