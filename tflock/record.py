@@ -200,11 +200,11 @@ def view_corners(pos: np.ndarray, vectors: np.ndarray) -> np.ndarray | None:
     """(2, dim) float32 points whose region of interest in the viewer is the box an open-space 2D view should show:
     the drawn agents and their arrows' tips, with :data:`VIEW_MARGIN` of their extent (at least one arrow's length)
     around them. The viewer frames a 2D view without set bounds on the union of its entities' regions of interest,
-    each the mean +- 2 standard deviations of the entity's points per axis (Rerun 0.41, ``RobustBounds``): the
-    agents' alone cut an agent at the swarm's edge in half. Two points at the box's centre +- a quarter of its
-    sides have mean the centre and standard deviation half of each half-side, so their region is the box itself;
-    they are logged invisible (``world/extent``). None where no drawn agent is finite (float32 frames of a float64
-    run far out)."""
+    each the mean +- 2 standard deviations of the entity's points per axis (Rerun's ``RobustBounds``; with 0.41 two
+    points at +-h framed +-2h, seen in a screenshot): the agents' alone cut an agent at the swarm's edge in half.
+    Two points at the box's centre +- a quarter of its sides have mean the centre and standard deviation half of
+    each half-side, so their region is the box itself; they are logged invisible (``world/extent``). None where no
+    drawn agent is finite (float32 frames of a float64 run far out)."""
     pos, vectors = pos.astype(np.float64), vectors.astype(np.float64)  # float32's range: no overflow below
     finite = np.isfinite(pos).all(axis=1) & np.isfinite(vectors).all(axis=1)
     if not finite.any():
