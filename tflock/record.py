@@ -205,14 +205,19 @@ def view_corners(pos: np.ndarray, vectors: np.ndarray) -> np.ndarray | None:
     Two points at the box's centre +- a quarter of its sides have mean the centre and standard deviation half of
     each half-side, so their region is the box itself; they are logged invisible (``world/extent``). None where no
     drawn agent is finite (float32 frames of a float64 run far out)."""
-    pos, vectors = pos.astype(np.float64), vectors.astype(np.float64)  # float32's range: no overflow below
-    finite = np.isfinite(pos).all(axis=1) & np.isfinite(vectors).all(axis=1)
-    if not finite.any():
-        return None
-    pos, vectors = pos[finite], vectors[finite]
-    points = np.concatenate([pos, pos + vectors])
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    arrow = float(np.sqrt(np.einsum("ij,ij->i", vectors, vectors).max()))
+    pos = np.array(pos.T, dtype=np.float64)  # (dim, m) rows: fast reductions; float64: no overflow below
+    vectors = np.array(vectors.T, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # inf - inf where a float32 frame overflowed
+        tips = pos + vectors
+    if not (np.isfinite(pos).all() and np.isfinite(tips).all()):
+        finite = np.isfinite(pos).all(axis=0) & np.isfinite(tips).all(axis=0)
+        if not finite.any():
+            return None
+        pos, vectors, tips = pos[:, finite], vectors[:, finite], tips[:, finite]
+    # row by row: NumPy 2.4's min over axis 1 of a (2, 50000) array took 1.3 ms, a row's 5 us
+    lo = np.array([min(a.min(), b.min()) for a, b in zip(pos, tips, strict=True)])
+    hi = np.array([max(a.max(), b.max()) for a, b in zip(pos, tips, strict=True)])
+    arrow = float(np.sqrt(sum(row * row for row in vectors).max()))
     pad = max(VIEW_MARGIN * float((hi - lo).max()), arrow, 1e-6)
     centre, half = (lo + hi) / 2, (hi - lo) / 2 + pad
     big = float(np.finfo(np.float32).max)
