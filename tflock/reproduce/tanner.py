@@ -323,7 +323,10 @@ class Tanner(Experiment):
             f"replicas connected throughout the second half: fixed random "
             f"{pct(fr.sync_fraction_connected, fr.connected_fraction * fr.replicas)},"
             f" complete {pct(fc.sync_fraction_connected, fc.connected_fraction * fc.replicas)}, switching "
-            f"{pct(sw.sync_fraction_connected, sw.connected_fraction * sw.replicas)})":
+            f"{pct(sw.sync_fraction_connected, sw.connected_fraction * sw.replicas)}, of the "
+            f"{round(sw.connected_fraction * sw.replicas)} of {int(sw.replicas)} switching replicas connected; over "
+            f"all switching replicas {pct(sw.sync_fraction, sw.replicas)} synchronised, where the paper's one "
+            "switching run did: our random start does not keep the graph connected, which the theorems assume)":
                 min(fr.sync_fraction_connected, fc.sync_fraction_connected, sw.sync_fraction_connected) == 1,
             f"W and Q never increase (eqs. 8, 12; non-increasing, up to {step} rises of {RISE_TOL:g} of the "
             f"total fall (float32 rounding), over the whole run in "
