@@ -315,7 +315,8 @@ class Tanner(Experiment):
             at_rest = "agrees"
         else:
             at_rest = "agrees only in part: still settling at the end in " + ", ".join(
-                f"{pct(1 - f, rows.loc[case].replicas)} of the {case} runs" for case, f in still.items() if f < 1)
+                f"{pct(1 - f, rows.loc[case].replicas)} of the {case} runs" for case, f in still.items() if f < 1) \
+                + " (the theorems say where the motion ends, not how soon: a run of the paper's 100 s may stop short)"
         sw_valency = Estimate(sw.valency_mean_final, sw.valency_mean_final_lo, sw.valency_mean_final_hi, sw.replicas)
         grew = sw.single_valency_grew_fraction
         checks = {
@@ -345,8 +346,8 @@ class Tanner(Experiment):
                 and min(fc.single_min_distance_min, sw.single_min_distance_min) >= CLOSE,
             f"switching stops and the valencies settle (Theorem 2 (1), Fig. 6; constant in the second half in "
             f"{pct(sw.valencies_constant_fraction, sw.replicas)} of the replicas)": sw.valencies_constant_fraction == 1,
-            f"the valencies grow (section 6, Fig. 6; the mean valency ends above its start in {pct(grew)} of the "
-            f"{int(sw.single_runs)} single switching runs)": grew == 1,
+            f"the valencies grow (section 6, Fig. 6; the mean valency ends above its start in "
+            f"{pct(grew, sw.single_runs)} of the {int(sw.single_runs)} single switching runs)": grew == 1,
             "the potential settles at a (local) minimum: relative positions at rest (Theorems 1-2)": at_rest,
         }
         words = {True: "agrees", False: "does NOT agree"}
