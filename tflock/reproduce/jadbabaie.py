@@ -241,6 +241,7 @@ def summarise(replicas: pd.DataFrame) -> pd.DataFrame:
             if group["connected_late"].any() else np.nan,
             "median_e_theta": group["final_e_theta"].median(), "max_e_theta": group["final_e_theta"].max(),
             "median_leader_error": group["final_leader_error"].median() if leader else np.nan,
+            "max_leader_error": group["final_leader_error"].max() if leader else np.nan,
             "clusters": group["final_clusters"].mean(), "clusters_lo": mean_ci(group["final_clusters"]).lo,
             "clusters_hi": mean_ci(group["final_clusters"]).hi,
             "largest_cluster": group["final_largest_cluster"].mean(),
@@ -256,7 +257,7 @@ def summarise(replicas: pd.DataFrame) -> pd.DataFrame:
 
 def _rows(table: pd.DataFrame) -> list[str]:
     lines = ["| leader | rule | boundary | r | k | agreed | followed | graph connected all 2nd half | "
-             "agreed if so | split for good | median e_theta (max) | median leader_error | final clusters |",
+             "agreed if so | split for good | median e_theta (max) | median leader_error (max) | final clusters |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in table.itertuples():
         n, connected = row.replicas, row.connected_late * row.replicas
@@ -265,7 +266,8 @@ def _rows(table: pd.DataFrame) -> list[str]:
                      f"{row.k_expected:.1f} | {share_text(row.agreed, n)} | {share_text(row.followed, n)} | "
                      f"{share_text(row.connected_late, n)} | {share_text(row.agreed_if_connected_late, connected)} | "
                      f"{share_text(row.split, n)} | {row.median_e_theta:.2g} ({row.max_e_theta:.2g}) | "
-                     f"{'-' if not row.leader else f'{row.median_leader_error:.2g}'} | {clusters.short(1)} |")
+                     f"{'-' if not row.leader else f'{row.median_leader_error:.2g} ({row.max_leader_error:.2g})'} | "
+                     f"{clusters.short(1)} |")
     return lines
 
 
