@@ -80,6 +80,13 @@ RADIUS_EDGES = "pairs within the interaction radius among the drawn agents"
 HEADING_LEGEND = ColorLegend("agents: heading", wheel=True)
 
 
+def axis_bounds(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's smallest and largest value, for points given as (dim, m) rows (a (m, dim) array's transpose): a
+    row at a time, since NumPy 2.4 reduces narrow 2-D arrays along their long axis slowly here (the min over axis 0 of
+    50,000 positions took 1.3 ms, a row's 5 us)."""
+    return np.array([row.min() for row in rows]), np.array([row.max() for row in rows])
+
+
 def arrow_length(box: float, drawn: int, dim: int = 2, spread: np.ndarray | None = None) -> float:
     """Scene length of a full-speed agent's arrow: 0.6 of the spacing of the drawn agents in a cube of side L (so
     that arrows of neighbouring agents do not cover each other), at most L / 30 (about 30 px when the swarm fills a
@@ -88,8 +95,8 @@ def arrow_length(box: float, drawn: int, dim: int = 2, spread: np.ndarray | None
     spreads far beyond its initial square and the viewer zooms out to show it."""
     side = box
     if spread is not None and len(spread):
-        # a column at a time: NumPy 2.4's ptp over axis 0 of 50k rows took 2.6 ms, the columns' 0.08
-        side = max(side, *(float(np.ptp(column)) for column in np.asarray(spread, dtype=np.float64).T))
+        low, high = axis_bounds(np.asarray(spread, dtype=np.float64).T)
+        side = max(side, float((high - low).max()))
     spacing = side / max(drawn, 1) ** (1.0 / dim)
     return float(min(0.6 * spacing, side / 30.0))
 
