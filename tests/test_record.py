@@ -771,6 +771,50 @@ def test_series_constant_after_step_0_share_the_constant_plot(tmp_path: Path) ->
     assert {"updated", "components"} <= set(_layout_names(path, "SeriesLines:names"))
 
 
+def test_series_of_very_different_sizes_get_plots_apart() -> None:
+    """A series drawn nearly flat beside a larger one (the default Vicsek run's mean neighbours, 6-94, beside their
+    maximum, 19-690, on a 0-1000 axis; number fluctuations of 1-6 agents beside 70-2900) gets a plot apart, split
+    again while its part still holds such a series; series alike in size, constant series and series without values
+    stay together, and the plots keep the group's order."""
+    from tflock.record import FLAT_SHARE, metric_groups, plot_range, readable_groups
+
+    extents = {"mean_neighbors": (6.3, 94.0), "max_neighbors": (19.0, 690.0), "polarization": (0.0, 0.07),
+               "gnf_std_4": (70.0, 2872.0), "gnf_std_8": (37.6, 1023.0), "gnf_std_16": (19.0, 480.5),
+               "gnf_std_32": (9.4, 187.5), "gnf_std_64": (4.9, 67.4), "gnf_std_128": (2.5, 21.7),
+               "gnf_std_256": (1.2, 6.1)}
+    groups = readable_groups(metric_groups(list(extents)), extents.get)
+    assert groups == {
+        "mean_neighbors": [("mean_neighbors", "mean")],
+        "max_neighbors": [("max_neighbors", "max")],
+        "polarization": [("polarization", "polarization")],
+        "gnf_std (1 of 3)": [("gnf_std_4", "box L/4"), ("gnf_std_8", "box L/8"), ("gnf_std_16", "box L/16")],
+        "gnf_std (2 of 3)": [("gnf_std_32", "box L/32"), ("gnf_std_64", "box L/64"), ("gnf_std_128", "box L/128")],
+        "gnf_std_256": [("gnf_std_256", "box L/256")],
+    }
+    for members in groups.values():  # every series that changes spans at least FLAT_SHARE of its plot's range
+        low, high = plot_range([extents[m] for m, _ in members])
+        assert all(extents[m][1] - extents[m][0] >= FLAT_SHARE * (high - low) for m, _ in members)
+    # alike in size (parallel lines, each spanning little: splitting would not help), constant, or no values yet
+    alike = {f"speed_{i}": (i, i + 0.3) for i in range(4)}
+    assert len(readable_groups(metric_groups(list(alike)), alike.get)) == 1
+    mixed = {"valency_min": (0.0, 0.0), "valency_mean": (4.0, 8.0), "valency_max": (12.0, 20.0)}
+    assert readable_groups(metric_groups([*mixed, "valency_7"]), mixed.get) == metric_groups([*mixed, "valency_7"])
+
+
+def test_the_last_layout_gives_a_flattened_series_its_own_plot(tmp_path: Path) -> None:
+    """The layout sent at the end splits a group whose series differ in size; the first one, sent before any values,
+    holds the group's one plot."""
+    path = tmp_path / "sizes.rrd"
+    metrics = {"mean_neighbors": "mean", "max_neighbors": "max", "order": "order"}
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path) as rec:
+        assert [plot.name for plot in rec._plots(())] == ["neighbors", "order"]
+        for step in range(4):
+            rec.log_metrics(step, {"mean_neighbors": 6.0 + step, "max_neighbors": 20.0 + 200 * step, "order": 0.1})
+        assert [plot.name for plot in rec._plots(rec.constant_metrics())] == ["mean_neighbors", "max_neighbors",
+                                                                               "constant: order"]
+    assert {"mean_neighbors", "max_neighbors"} <= set(_layout_names(path))
+
+
 def test_a_plot_of_more_series_than_a_legend_holds_says_how_to_find_their_names(tmp_path: Path) -> None:
     """Vicsek's number fluctuations (7 box sizes, one plot) and a fixed graph's constant valencies (16 flat lines in
     one strip) are too many for a legend: their titles say how many lines there are and that hovering one names it
@@ -984,12 +1028,13 @@ def test_legend_corner_avoids_the_data() -> None:
 
 
 def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: Path) -> None:
-    """A Vicsek recording's number-fluctuation series form one plot, ``gnf_std``, whose lines are named by their box
-    size (not "agent 4"); the layout sent at the end places that plot's legend in the corner that covers the fewest
-    of its points."""
+    """A Vicsek recording's number-fluctuation series form the plots ``gnf_std`` (``gnf_std (1 of 2)``, ... where
+    their sizes differ too much for one plot, :func:`readable_groups`), whose lines are named by their box size (not
+    "agent 4"); the layout sent at the end places each such plot's legend in the corner that covers the fewest of
+    its points."""
     from rerun.blueprint.components import Corner2D
 
-    from tflock.record import legend_corner
+    from tflock.record import legend_corner, metric_groups, readable_groups
 
     path = tmp_path / "gnf.rrd"
     sim = make_sim(model="vicsek", params={"n": 2000, "box": 32.0}, steps=12, record=path,
@@ -1008,10 +1053,16 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     gaps = np.linalg.norm(rgb[:, None] - rgb[None], axis=2) + 1e9 * np.eye(len(rgb))
     assert gaps.min() > 80
     legends = _plot_components(path)
-    assert "gnf_std" in legends and not any("agent" in name for name in legends)
-    assert legends["gnf_std"]["PlotLegend:visible"] == [True]
-    corner = getattr(Corner2D, legend_corner(list(traces.values()), recorder._y_range(list(traces))))
-    assert legends["gnf_std"]["PlotLegend:corner"] == [corner.value]
+    assert not any("agent" in name for name in legends)
+    plots = {title: [m for m, _ in members]
+             for title, members in readable_groups(metric_groups(list(traces)), recorder._rows.extent).items()}
+    assert sorted(m for members in plots.values() for m in members) == sorted(traces)
+    assert all(title.startswith("gnf_std") for title in plots) and any(len(m) > 1 for m in plots.values())
+    for title, members in plots.items():
+        if len(members) > 1:
+            assert legends[title]["PlotLegend:visible"] == [True]
+            corner = getattr(Corner2D, legend_corner([traces[m] for m in members], recorder._y_range(members)))
+            assert legends[title]["PlotLegend:corner"] == [corner.value]
 
 
 def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> None:

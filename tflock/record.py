@@ -42,7 +42,7 @@ import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -275,6 +275,49 @@ def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
             out[names_in[0]] = [(names_in[0], names_in[0])]
         else:
             out[group] = [(n, label[n]) for n in names_in]
+    return out
+
+
+#: a series whose values span less than this share of its plot's y range is drawn nearly flat (under 11 px of a
+#: plot of the default layout): the last layout gives it a plot apart (:func:`readable_groups`)
+FLAT_SHARE = 0.1
+
+
+def plot_range(extents: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """The y range a plot of series of these (low, high) extents shows: :func:`labelled_range`'s, or the values'
+    own (the viewer's fit, less its small margin)."""
+    low, high = min(lo for lo, _ in extents), max(hi for _, hi in extents)
+    return labelled_range(low, high) or (low, high)
+
+
+def readable_groups(groups: dict[str, list[tuple[str, str]]],
+                    extent: Callable[[str], tuple[float, float] | None]) -> dict[str, list[tuple[str, str]]]:
+    """:func:`metric_groups`' plots, each split where its series differ so much in size that some would be drawn
+    flat: a series that changes but spans less than :data:`FLAT_SHARE` of its plot's y range (:func:`plot_range`
+    of the series' `extent`, their (low, high) so far) moves to another plot, with the others so moved, and that
+    plot is split in turn (Vicsek's mean beside its max neighbours, 6-94 on a 0-1000 axis; number fluctuations of
+    1-6 agents beside 70-2900). Series with no values yet, or one value, stay. A plot left with one series is named
+    after its metric; one of several ``<group> (<k> of <parts>)``, short enough for a plot's title bar (its legend
+    names the series)."""
+    out: dict[str, list[tuple[str, str]]] = {}
+    for group, members in groups.items():
+        parts, rest = [], members
+        while rest:
+            known = [e for e in (extent(m) for m, _ in rest) if e is not None]
+            low, high = plot_range(known) if known else (0.0, 0.0)
+            flat = [(m, s) for m, s in rest
+                    if (e := extent(m)) is not None and 0 < e[1] - e[0] < FLAT_SHARE * (high - low)]
+            if not flat or len(flat) == len(rest):  # all alike: split no further
+                parts.append(rest)
+                break
+            parts.append([member for member in rest if member not in flat])
+            rest = flat
+        if len(parts) == 1:
+            out[group] = members
+            continue
+        parts.sort(key=lambda part: members.index(part[0]))  # in the group's order
+        for k, part in enumerate(parts, 1):
+            out[part[0][0] if len(part) == 1 else f"{group} ({k} of {len(parts)})"] = part
     return out
 
 
@@ -551,7 +594,7 @@ class Recorder:
         """One plot per group of related metrics (:func:`metric_groups`), the groups of ``first_plots`` first,
         constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
-        groups = metric_groups(varying)
+        groups = readable_groups(metric_groups(varying), self._rows.extent)
         first = [g for m in self.first_plots for g, members in groups.items() if m in dict(members)]
         views = []
         for group in dict.fromkeys([*first, *groups]):  # the first plots', then the rest in the metrics' order
