@@ -591,8 +591,8 @@ class Recorder:
         return tabs
 
     def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
-        """One plot per group of related metrics (:func:`metric_groups`), the groups of ``first_plots`` first,
-        constant series in one plot, last."""
+        """One plot per group of related metrics (:func:`metric_groups`, split where their sizes differ too much:
+        :func:`readable_groups`), the groups of ``first_plots`` first, constant series in one plot, last."""
         varying = [n for n in self.metrics if n not in constant]
         groups = readable_groups(metric_groups(varying), self._rows.extent)
         first = [g for m in self.first_plots for g, members in groups.items() if m in dict(members)]
