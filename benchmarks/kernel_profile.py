@@ -1,7 +1,9 @@
 """Where a run's time goes, kernel by kernel: Taichi's kernel profiler over 10 steps of ``tflock sim``'s loop (metrics
-every step, the non-finite guard, no recording), then Python's profiler over 10 more.
+every step, or every K steps with ``--metrics-every K``; the non-finite guard, no recording), then Python's profiler
+over 10 more. ``--metrics-every 1000000`` profiles the plain steps (the first of them may still take the neighbour
+sums a metrics pass before it ran for it: Vicsek's graph pass then shows once).
 
-    python benchmarks/kernel_profile.py MODEL N [--arch cpu|cuda|vulkan]
+    python benchmarks/kernel_profile.py MODEL N [--arch cpu|cuda|vulkan] [--metrics-every K]
 
 The model's default config at N agents (the bench's scaling of lengths: same density), from the uniform start, one
 step and three more with metrics before the profiled ones (compiles). The first line gives the profiled steps' ms a
@@ -36,6 +38,8 @@ def main() -> None:
     parser.add_argument("model")
     parser.add_argument("n", type=float)
     parser.add_argument("--arch", default="cpu")
+    parser.add_argument("--metrics-every", type=int, default=1,
+                        help="metrics every K steps (1, a run's default; 1000000: the plain steps alone)")
     args = parser.parse_args()
     init = ti.init
     ti.init = lambda *a, **k: init(*a, **{**k, "kernel_profiler": True})  # tflock.engine calls ti.init
@@ -46,7 +50,7 @@ def main() -> None:
     case = BenchCase(model=args.model, n=int(args.n), state="uniform", develop_steps=0, repeats=3, arch=args.arch)
     sim = Simulation(case_config(case), record=False)
     sim.model.advance(1)
-    sim.config.log.metrics_every = 1
+    sim.config.log.metrics_every = args.metrics_every
     sim.step(3)
     ti.sync()
     ti.profiler.clear_kernel_profiler_info()
