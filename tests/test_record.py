@@ -803,7 +803,7 @@ def test_series_of_very_different_sizes_get_plots_apart() -> None:
 
 def test_the_last_layout_gives_a_flattened_series_its_own_plot(tmp_path: Path) -> None:
     """The layout sent at the end splits a group whose series differ in size; the first one, sent before any values,
-    holds the group's one plot."""
+    holds the group's one plot. The about page, written again, names the plots as the last layout has them."""
     path = tmp_path / "sizes.rrd"
     metrics = {"mean_neighbors": "mean", "max_neighbors": "max", "order": "order"}
     with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path) as rec:
@@ -813,6 +813,8 @@ def test_the_last_layout_gives_a_flattened_series_its_own_plot(tmp_path: Path) -
         assert [plot.name for plot in rec._plots(rec.constant_metrics())] == ["mean_neighbors", "max_neighbors",
                                                                                "constant: order"]
     assert {"mean_neighbors", "max_neighbors"} <= set(_layout_names(path))
+    (about,) = _last(_chunks(path)["/about"], "TextDocument:text")
+    assert "- **mean_neighbors** (`mean_neighbors`): mean" in about and "**neighbors**" not in about
 
 
 def test_a_plot_of_more_series_than_a_legend_holds_says_how_to_find_their_names(tmp_path: Path) -> None:
@@ -1133,7 +1135,8 @@ def test_about_keeps_descriptions_whole(make_sim, tmp_path: Path) -> None:
     sim.run()
     sim.close()
     (about,) = _last(_chunks(path)["/about"], "TextDocument:text")
-    assert "  - mean (`velocity_mismatch_mean`): mean \\|v\\_i - mean v\\|\n" in about
+    # (a series of its group's plot, "  - mean (`...`)", or a plot of its own where the sizes split the group)
+    assert "(`velocity_mismatch_mean`): mean \\|v\\_i - mean v\\|\n" in about
     assert "- **polarization** (`polarization`): polarization \\|mean v\\_i / \\|v\\_i\\|\\|\n" in about
 
 

@@ -634,8 +634,9 @@ class Recorder:
         corner = legend_corner([self._rows.series(m) for m in members], y_range)
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
 
-    def _about(self) -> str:
-        """Markdown: what the world view draws and every metric's description."""
+    def _about(self, split: bool = False) -> str:
+        """Markdown: what the world view draws and every metric's description, by plot: the groups of
+        :func:`metric_groups`, or where `split` (the last layout's) as :func:`readable_groups` splits them."""
         world = self.world
         lines = ["# What the views show", ""]
         lines.append(f"**world**: {self.drawn or 'the agents'}; {world.dim}D, {world.boundary} boundary, box "
@@ -671,7 +672,10 @@ class Recorder:
                          "its slab's position along that axis, in the box's coordinates")
         # a list, not a table: the viewer does not wrap a table's cells (descriptions were cut at the view's edge)
         lines += ["", "# Metrics", "", "Each plot, and the metrics it draws (`name` in the metrics table):", ""]
-        for group, members in metric_groups(list(self.metrics)).items():
+        groups = metric_groups(list(self.metrics))
+        if split:
+            groups = readable_groups(groups, self._rows.extent)
+        for group, members in groups.items():
             if len(members) == 1:
                 name = members[0][0]
                 lines.append(f"- **{group}** (`{name}`): {_markdown_text(self.metrics[name])}")
@@ -1057,7 +1061,8 @@ class Recorder:
         The layout is sent again once the run has more than one row of metrics: series that never changed share one
         plot, out of the way of the others, each legend goes where it covers the fewest points, and a plot that would
         show no numbers on its y axis gets a labelled range (:func:`labelled_range`; the viewer opens a file with the
-        last layout it holds)."""
+        last layout it holds); a group of series too different in size is split (:func:`readable_groups`), and the
+        about page is written again to name the plots so."""
         if self._closed:
             return
         self._closed = True
@@ -1069,6 +1074,9 @@ class Recorder:
                 constant = ()
             if self.enabled and self._rows.rows > 1:
                 self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
+                about = self._about(split=True)
+                if about != self._about():  # the plots were split: the about page names them as the layout does
+                    self.rec.log(ABOUT, rr.TextDocument(about, media_type=rr.MediaType.MARKDOWN), static=True)
             self.rec.disconnect()
         finally:
             if self._csv_file is not None:
