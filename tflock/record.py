@@ -283,11 +283,16 @@ def metric_groups(names: list[str]) -> dict[str, list[tuple[str, str]]]:
 FLAT_SHARE = 0.1
 
 
+def value_span(extents: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """The smallest low and largest high of series of these (low, high) extents (at least one)."""
+    return min(lo for lo, _ in extents), max(hi for _, hi in extents)
+
+
 def plot_range(extents: Sequence[tuple[float, float]]) -> tuple[float, float]:
     """The y range a plot of series of these (low, high) extents shows: :func:`labelled_range`'s, or the values'
     own (the viewer's fit, less its small margin)."""
-    low, high = min(lo for lo, _ in extents), max(hi for _, hi in extents)
-    return labelled_range(low, high) or (low, high)
+    span = value_span(extents)
+    return labelled_range(*span) or span
 
 
 def readable_groups(groups: dict[str, list[tuple[str, str]]],
@@ -622,9 +627,7 @@ class Recorder:
     def _y_range(self, members: list[str]) -> tuple[float, float] | None:
         """A plot's fixed y range: :func:`labelled_range` of its series' values so far, or None (the viewer's fit)."""
         extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
-        if not extents:
-            return None
-        return labelled_range(min(lo for lo, _ in extents), max(hi for _, hi in extents))
+        return labelled_range(*value_span(extents)) if extents else None
 
     def _legend(self, members: list[str], y_range: tuple[float, float] | None) -> rrb.PlotLegend:
         """A plot's legend: shown for 2 to LEGEND_MAX series, in the corner where it covers the fewest of their points
@@ -634,9 +637,9 @@ class Recorder:
         corner = legend_corner([self._rows.series(m) for m in members], y_range)
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
 
-    def _about(self, split: bool = False) -> str:
-        """Markdown: what the world view draws and every metric's description, by plot: the groups of
-        :func:`metric_groups`, or where `split` (the last layout's) as :func:`readable_groups` splits them."""
+    def _about(self) -> str:
+        """Markdown: what the world view draws and every metric's description, by plot as the layout groups them
+        (:func:`readable_groups` of the values so far: none at the start, so no group is split there)."""
         world = self.world
         lines = ["# What the views show", ""]
         lines.append(f"**world**: {self.drawn or 'the agents'}; {world.dim}D, {world.boundary} boundary, box "
@@ -672,10 +675,7 @@ class Recorder:
                          "its slab's position along that axis, in the box's coordinates")
         # a list, not a table: the viewer does not wrap a table's cells (descriptions were cut at the view's edge)
         lines += ["", "# Metrics", "", "Each plot, and the metrics it draws (`name` in the metrics table):", ""]
-        groups = metric_groups(list(self.metrics))
-        if split:
-            groups = readable_groups(groups, self._rows.extent)
-        for group, members in groups.items():
+        for group, members in readable_groups(metric_groups(list(self.metrics)), self._rows.extent).items():
             if len(members) == 1:
                 name = members[0][0]
                 lines.append(f"- **{group}** (`{name}`): {_markdown_text(self.metrics[name])}")
@@ -1074,9 +1074,8 @@ class Recorder:
                 constant = ()
             if self.enabled and self._rows.rows > 1:
                 self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
-                about = self._about(split=True)
-                if about != self._about():  # the plots were split: the about page names them as the layout does
-                    self.rec.log(ABOUT, rr.TextDocument(about, media_type=rr.MediaType.MARKDOWN), static=True)
+                # the about page again (static: the last one wins), naming the plots as this layout splits them
+                self.rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
             self.rec.disconnect()
         finally:
             if self._csv_file is not None:
