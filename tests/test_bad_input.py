@@ -483,6 +483,8 @@ OTHER_COMMANDS = [
     (["view", "missing.rrd"], ["recording not found", "missing.rrd"]),
     (["view", "out_dir.rrd"], ["out_dir.rrd is a folder, not a recording"]),
     (["view", "missing.rrd", "--port", "abc"], ["--port", "valid integer"]),
+    (["view", "--live", "missing.rrd"], ["--live and missing.rrd", "give one of them"]),
+    (["view", "--live", "--screenshot", "shot.png"], ["--screenshot needs a recording"]),
     (["bench", "--sizes", "abc"], ["--sizes", "comma-separated numbers", "abc"]),
     (["bench", "--sizes", "0"], ["--sizes", "must be > 0"]),
     (["bench", "--sizes", "-5"], ["--sizes", "must be > 0"]),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
@@ -12,6 +13,7 @@ import sys
 import textwrap
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -252,7 +254,7 @@ def test_not_a_recording(tmp_path: Path) -> None:
 def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    with pytest.raises(RuntimeError, match="--spawn needs a display"):
+    with pytest.raises(RuntimeError, match="--spawn needs a display.*`tflock view --live --web`.*--connect"):
         Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={}, spawn=True,
                  path=tmp_path / "x.rrd")
 
@@ -441,20 +443,33 @@ def _wait_for_port(port: int, timeout: float = 10.0) -> None:
     raise TimeoutError(f"nothing listens on port {port}")
 
 
-def test_tee_file_and_grpc(tmp_path: Path) -> None:
-    """`connect` streams to a running receiver while the file sink still gets everything."""
+@contextlib.contextmanager
+def _receiver(saved: Path) -> Iterator[str]:
+    """A Rerun viewer process that saves what it receives in `saved`, while the block runs: the URL to stream to."""
     from tflock.record import rerun_executable
 
     port = _free_port()
-    received = tmp_path / "received.rrd"
-    receiver = subprocess.Popen([*rerun_executable(), "--port", str(port), "--save", str(received)],
+    receiver = subprocess.Popen([*rerun_executable(), "--port", str(port), "--save", str(saved)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         _wait_for_port(port)
+        yield f"rerun+http://127.0.0.1:{port}/proxy"
+    finally:
+        receiver.send_signal(signal.SIGINT)
+        try:
+            receiver.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            receiver.kill()
+
+
+def test_tee_file_and_grpc(tmp_path: Path) -> None:
+    """`connect` streams to a running receiver while the file sink still gets everything."""
+    received = tmp_path / "received.rrd"
+    with _receiver(received) as url:
         path = tmp_path / "tee.rrd"
         rng = np.random.default_rng(2)
         with Recorder(model="vicsek", config_toml=CONFIG, world=WorldSpec(2, "periodic", 10.0), metrics=METRICS,
-                      path=path, connect=f"rerun+http://127.0.0.1:{port}/proxy") as rec:
+                      path=path, connect=url) as rec:
             for step in range(5):
                 rec.log_frame(step, synthetic_frame(rng, 2))
                 rec.log_metrics(step, {"order": 0.1, "speed": 1.0})
@@ -468,12 +483,6 @@ def test_tee_file_and_grpc(tmp_path: Path) -> None:
                 pass
             time.sleep(0.2)
         assert read_recording(received).frames == 5
-    finally:
-        receiver.send_signal(signal.SIGINT)
-        try:
-            receiver.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            receiver.kill()
 
 
 def _outward_address() -> str | None:
@@ -524,6 +533,52 @@ def test_open_viewer_web(tmp_path: Path) -> None:
         if child.poll() is None:
             os.killpg(child.pid, signal.SIGKILL)  # a failed test leaves no rerun server behind
             child.wait()
+
+
+def test_view_live_shows_the_runs_streamed_to_it(tmp_path: Path) -> None:
+    """`tflock view --live --web` serves an empty web viewer and prints the URL a run streams to; a run that streams
+    there (`tflock sim --connect URL`) reaches it: a second client of the viewer's server receives the run's frames."""
+    code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "from tflock.cli import app\napp()\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    child = subprocess.Popen([sys.executable, "-c", code, "view", "--live", "--web"], stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True, env=env, start_new_session=True)
+    saver = None
+    try:
+        assert child.stdout is not None
+        assert "Web viewer: http://127.0.0.1:" in child.stdout.readline()
+        line = child.stdout.readline()
+        assert line.startswith("Stream a run to it: tflock sim --connect rerun+http://127.0.0.1:"), line
+        url = line.split()[-1]
+        _wait_for_port(int(url.rsplit(":", 1)[1].split("/")[0]))
+        rng = np.random.default_rng(3)
+        with Recorder(model="vicsek", config_toml=CONFIG, world=WorldSpec(2, "periodic", 10.0), metrics=METRICS,
+                      connect=url) as rec:
+            for step in range(3):
+                rec.log_frame(step, synthetic_frame(rng, 2))
+                rec.log_metrics(step, {"order": 0.1, "speed": 1.0})
+        from tflock.record import rerun_executable
+
+        got = tmp_path / "got.rrd"
+        saver = subprocess.Popen([*rerun_executable(), "--connect", url, "--save", str(got)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 20
+        frames = 0
+        while time.monotonic() < deadline and frames < 3:
+            with contextlib.suppress(ValueError, OSError):
+                frames = read_recording(got).frames
+            time.sleep(0.2)
+        assert frames == 3
+        assert child.poll() is None  # serving until stopped
+        child.send_signal(signal.SIGINT)
+        assert child.wait(timeout=10) == 0
+    finally:
+        if saver is not None:
+            saver.kill()
+            saver.wait()
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
 
 
 def test_markers_are_drawn_on_their_own_entities(tmp_path: Path) -> None:
@@ -815,6 +870,52 @@ def test_the_last_layout_gives_a_flattened_series_its_own_plot(tmp_path: Path) -
     assert {"mean_neighbors", "max_neighbors"} <= set(_layout_names(path))
     (about,) = _last(_chunks(path)["/about"], "TextDocument:text")
     assert "- **mean_neighbors** (`mean_neighbors`): mean" in about and "**neighbors**" not in about
+
+
+def _layouts_in_order(path: Path) -> list[list[str]]:
+    """The view and container names of each layout a recording holds, in the order they were sent."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    layouts = []
+    for store in reader.blueprints():
+        rows = [row for c in reader.stream(store=store) for row in c.to_record_batch().to_pylist()]
+        names = [row[key][0] for row in rows for key in row if key.endswith(":display_name") and row[key]]
+        layouts.append((max(row["log_time"] for row in rows), names))
+    return [names for _, names in sorted(layouts)]
+
+
+def test_a_live_viewer_gets_the_split_while_the_run_goes_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Streaming to a viewer, the layout is sent again as soon as the values split a plot (not only at the end, which
+    a long run reaches late), at most once every LIVE_LAYOUT_S; a recording no viewer watches gets no layout before
+    the last."""
+    import tflock.record as record
+
+    metrics = {"mean_neighbors": "mean", "max_neighbors": "max", "order": "order"}
+
+    def run(path: Path, connect: str | None) -> None:
+        with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics, path=path,
+                      connect=connect) as rec:
+            for step in range(4):
+                rec.log_metrics(step, {"mean_neighbors": 6.0 + step, "max_neighbors": 20.0 + 200 * step,
+                                       "order": 0.1 * step})
+                rec.flush()  # the rows go out: where the layout may follow them
+            assert rec.live == (connect is not None)
+
+    with _receiver(tmp_path / "received.rrd") as url:
+        run(tmp_path / "limited.rrd", url)  # within LIVE_LAYOUT_S of the first layout: only the last one follows
+        monkeypatch.setattr(record, "LIVE_LAYOUT_S", 0.0)
+        run(tmp_path / "live.rrd", url)
+    run(tmp_path / "file.rrd", None)
+    for name in ("limited", "file"):
+        first, last = _layouts_in_order(tmp_path / f"{name}.rrd")
+        assert "neighbors" in first and {"mean_neighbors", "max_neighbors"} <= set(last)
+    first, mid_run, *_ = layouts = _layouts_in_order(tmp_path / "live.rrd")
+    assert len(layouts) == 3  # the first, once when the values split the plot, the last
+    assert "neighbors" in first and "mean_neighbors" not in first
+    assert {"mean_neighbors", "max_neighbors"} <= set(mid_run) and "neighbors" not in mid_run
+    (about,) = _last(_chunks(tmp_path / "live.rrd")["/about"], "TextDocument:text")
+    assert "- **mean_neighbors** (`mean_neighbors`): mean" in about
 
 
 def test_a_plot_of_more_series_than_a_legend_holds_says_how_to_find_their_names(tmp_path: Path) -> None:

@@ -326,19 +326,32 @@ def config_show(model: Annotated[str, typer.Argument(help="Model name (see `tflo
 
 @app.command()
 def view(
-    path: Annotated[Path, typer.Argument(help="Recording (.rrd).")],
+    path: Annotated[Path | None, typer.Argument(help="Recording (.rrd).", show_default=False)] = None,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on localhost (no display needed).")] = False,
+    live: Annotated[bool, typer.Option(
+        "--live", help="No recording: a viewer that shows runs as they go (tflock sim --connect, the URL printed).")
+    ] = False,
     port: Annotated[int | None, typer.Option(help="Web viewer port (default: a free one).")] = None,
-    grpc_port: Annotated[int | None, typer.Option(help="Data port of --web (default: a free one).")] = None,
+    grpc_port: Annotated[int | None, typer.Option(
+        help="Data port of --web, the port runs stream to with --live (default: a free one).")] = None,
     screenshot: Annotated[Path | None, typer.Option(
         help="Save a PNG of the web viewer showing the recording (headless Chromium; needs playwright).")] = None,
 ) -> None:
-    """Open a recording in the Rerun viewer, or save a screenshot of it."""
+    """Open a recording in the Rerun viewer, or save a screenshot of it; --live: a viewer for runs as they go."""
     from tflock.record import open_viewer
 
-    _refuse_missing_recording(path)
-    try:
+    if live:
+        if path is not None:
+            fail(f"--live and {path}: --live opens a viewer for runs streamed to it, not a recording; give one of them")
         if screenshot is not None:
+            fail("--screenshot needs a recording (.rrd), not --live")
+    elif path is None:
+        fail("Missing argument 'PATH': the recording (.rrd) to open, or --live for a viewer that runs stream to; "
+             "see tflock view --help")
+    else:
+        _refuse_missing_recording(path)
+    try:
+        if screenshot is not None and path is not None:
             from tflock.screenshot import take_screenshots
 
             take_screenshots(path, [screenshot])

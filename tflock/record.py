@@ -326,6 +326,11 @@ def readable_groups(groups: dict[str, list[tuple[str, str]]],
     return out
 
 
+#: seconds a live viewer's layout stays at least before the values' split of the plots changes it
+#: (:meth:`Recorder._follow_split`)
+LIVE_LAYOUT_S = 10.0
+
+
 #: every plot's time axis spans the whole run, from its first step to its last. Left unset, the viewer derives a
 #: plot's range from the data it holds while the file streams in, stores it in the layout and then keeps that range:
 #: a 10,000-step Tanner recording opened in the web viewer showed steps 8900-10300 in every plot.
@@ -472,7 +477,8 @@ class Recorder:
                 raise ValueError(f"metric name {name!r} must be letters, digits, '_' or '-'")
         if spawn and not _has_display():
             raise RuntimeError(
-                "--spawn needs a display (no DISPLAY is set); use --out and `tflock view --web`"
+                "--spawn needs a display (no DISPLAY is set); watch the run in a browser instead: start "
+                "`tflock view --live --web` and pass the URL it prints to --connect"
             )
         self.model = model
         self.config_toml = config_toml
@@ -500,6 +506,8 @@ class Recorder:
         self._pending_since = time.monotonic()
         self._styles: float | None = None  # point radius of the styles logged for gathered frames
         self._shape_styles: dict[str, str] = {}  # the style logged for each of the gathered frames' other shapes
+        self._shown: list[tuple[str, list[tuple[str, str]]]] = []  # the plots of the layout a live viewer shows
+        self._shown_at = time.monotonic()  # when that layout was sent
 
         sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
@@ -507,6 +515,7 @@ class Recorder:
         if connect:
             sinks.append(rr.GrpcSink(connect))
         self.enabled = bool(sinks) or spawn
+        self.live = bool(spawn or connect)  # a viewer watches the run as it goes
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id, default_enabled=self.enabled,
                                       batcher_config=batcher_config())
         self.rec.set_log_time_enabled(False)
@@ -523,6 +532,7 @@ class Recorder:
                     self.rec.spawn(port=SPAWN_PORT, connect=False)
                     sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
                 self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
+                self._shown, self._shown_at = self._plot_split(), time.monotonic()
                 self._log_static()
         except BaseException:
             self.close()
@@ -675,7 +685,7 @@ class Recorder:
                          "its slab's position along that axis, in the box's coordinates")
         # a list, not a table: the viewer does not wrap a table's cells (descriptions were cut at the view's edge)
         lines += ["", "# Metrics", "", "Each plot, and the metrics it draws (`name` in the metrics table):", ""]
-        for group, members in readable_groups(metric_groups(list(self.metrics)), self._rows.extent).items():
+        for group, members in self._plot_split():
             if len(members) == 1:
                 name = members[0][0]
                 lines.append(f"- **{group}** (`{name}`): {_markdown_text(self.metrics[name])}")
@@ -1040,6 +1050,28 @@ class Recorder:
             self.rec.send_columns(f"{METRICS}/{name}", indexes=time_columns(steps, self.world.dt),
                                   columns=rr.Scalars.columns(scalars=values))
         self._pending_since = time.monotonic()
+        if self.live and self.enabled and not self._closed:
+            self._follow_split()
+
+    def _plot_split(self) -> list[tuple[str, list[tuple[str, str]]]]:
+        """The metric plots as the values so far split their groups (:func:`readable_groups`), every series counted
+        as varying: what the about page names."""
+        return list(readable_groups(metric_groups(list(self.metrics)), self._rows.extent).items())
+
+    def _follow_split(self) -> None:
+        """A live viewer's layout sent again, and the about page with it, when the values so far split the metric
+        plots otherwise than the layout it shows: a long run would else show a series drawn flat under a larger one
+        until its end, when :meth:`close` sends the last layout. It replaces a layout the user changed, as the last
+        one does, so at most once every :data:`LIVE_LAYOUT_S` (near the split's threshold a group can split and join
+        again while the values' ranges grow)."""
+        if time.monotonic() - self._shown_at < LIVE_LAYOUT_S:
+            return
+        split = self._plot_split()
+        if split == self._shown:
+            return
+        self._shown, self._shown_at = split, time.monotonic()
+        self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+        self.rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
 
     def constant_metrics(self) -> tuple[str, ...]:
         """The metrics logged with one value at every step after step 0 so far (none before two rows of any metric).
@@ -1264,16 +1296,17 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def _web_command(path: Path, port: int | None, grpc_port: int | None) -> tuple[list[str], int, str]:
-    """The command serving `path` in the web viewer, its HTTP port and the address to open (free ports where
-    None is given: several viewers can run at once). Both servers listen on 127.0.0.1 only (Rerun's default is
-    every interface): a remote machine's viewer is reached through an ssh tunnel (docs/recordings.md)."""
+def _web_command(path: Path | None, port: int | None, grpc_port: int | None) -> tuple[list[str], int, str, str]:
+    """The command serving `path` in the web viewer (None: no recording, the runs that stream to it), its HTTP
+    port, the address to open and the URL runs stream to (free ports where None is given: several viewers can run
+    at once). Both servers listen on 127.0.0.1 only (Rerun's default is every interface): a remote machine's viewer
+    is reached through an ssh tunnel (docs/recordings.md)."""
     port = free_port() if port is None else port
     grpc_port = free_port() if grpc_port is None else grpc_port
-    cmd = [*rerun_executable(), "--serve-web", str(path), "--web-viewer-port", str(port), "--port", str(grpc_port),
-           "--bind", "127.0.0.1"]
-    data_url = quote(f"rerun+http://127.0.0.1:{grpc_port}/proxy", safe="")
-    return cmd, port, f"http://127.0.0.1:{port}/?url={data_url}"
+    cmd = [*rerun_executable(), "--serve-web", *([] if path is None else [str(path)]), "--web-viewer-port", str(port),
+           "--port", str(grpc_port), "--bind", "127.0.0.1"]
+    stream_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    return cmd, port, f"http://127.0.0.1:{port}/?url={quote(stream_url, safe='')}", stream_url
 
 
 @contextlib.contextmanager
@@ -1281,7 +1314,7 @@ def serve_web(path: Path, port: int | None = None, grpc_port: int | None = None,
               timeout: float = 30.0) -> Iterator[str]:
     """Serve a recording in Rerun's web viewer for the ``with`` block, which gets the address to open; the server
     stops at its end. Ports as in :func:`open_viewer`."""
-    cmd, port, url = _web_command(Path(path), port, grpc_port)
+    cmd, port, url, _ = _web_command(Path(path), port, grpc_port)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         _wait_for_port(port, proc, timeout)
@@ -1290,25 +1323,32 @@ def serve_web(path: Path, port: int | None = None, grpc_port: int | None = None,
         _stop(proc)
 
 
-def open_viewer(path: Path, web: bool = False, port: int | None = None, grpc_port: int | None = None) -> None:
+def open_viewer(path: Path | None, web: bool = False, port: int | None = None,
+                grpc_port: int | None = None) -> None:
     """Open a recording in the Rerun viewer; blocks until the viewer closes (native) or Ctrl-C (web).
 
     ``web=True`` serves the web viewer over HTTP on ``port`` (the data over gRPC on ``grpc_port``) and prints the
     address to open; this works without a display. Ports left None are free ones the system picks, so several
-    viewers can run at once. The native viewer needs a display (RuntimeError otherwise).
+    viewers can run at once. The native viewer needs a display (RuntimeError otherwise). With `path` None, the
+    viewer opens empty and shows the runs that stream to it (``tflock sim --connect URL``, the URL printed) as they
+    go.
     """
-    path = Path(path)
-    if not path.is_file():
+    if path is not None and not Path(path).is_file():
         raise FileNotFoundError(f"no recording at {path}")
     if web:
-        cmd, _, url = _web_command(path, port, grpc_port)
+        cmd, _, url, stream_url = _web_command(path, port, grpc_port)
         print(f"Web viewer: {url}  (Ctrl-C to stop)", flush=True)
     else:
         if not _has_display():
             raise RuntimeError(
                 "the native viewer needs a display (no DISPLAY is set); use `tflock view --web`"
             )
-        cmd = [*rerun_executable(), str(path)]
+        grpc_port = free_port() if grpc_port is None else grpc_port
+        stream_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+        cmd = [*rerun_executable(), *(["--port", str(grpc_port), "--bind", "127.0.0.1"] if path is None
+                                      else [str(path)])]
+    if path is None:
+        print(f"Stream a run to it: tflock sim --connect {stream_url}", flush=True)
     # Rerun's own log at warnings and above (unless RUST_LOG says otherwise): its info lines, with colour codes and a
     # second address of its own, buried the one printed above
     env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
