@@ -141,4 +141,5 @@ def check_viewer(url: str) -> None:
     except OSError as e:
         reason = e.strerror or str(e) or type(e).__name__
         raise ConnectionError(f"--connect: no Rerun viewer answers at {host}:{port} ({reason.lower()}); start one "
-                              "(rerun), or record to a file and open it later") from None
+                              "(tflock view --live [--web] prints the URL to connect to), or record to a file and open "
+                              "it later") from None
