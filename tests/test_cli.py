@@ -160,6 +160,33 @@ def test_no_log_writes_no_file(tmp_path: Path) -> None:
     assert "wrote" not in result.stdout
 
 
+def test_a_run_streamed_to_a_live_viewer_says_so(tmp_path: Path) -> None:
+    """`tflock view --live --web` prints the URL to stream to; `tflock sim --connect URL` runs, writes no file (none
+    was asked for) and its summary names where it streamed, and that nothing was written."""
+    viewer = subprocess.Popen([sys.executable, "-m", "tflock", "view", "--live", "--web"], stdout=subprocess.PIPE,
+                              stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+    try:
+        assert viewer.stdout is not None
+        viewer.stdout.readline()  # the web viewer's address
+        url = viewer.stdout.readline().split()[-1]
+        assert url.startswith("rerun+http://127.0.0.1:") and url.endswith("/proxy"), url
+        run_dir = tmp_path / "run"
+        run_dir.mkdir()
+        result = tflock("sim", *SMALL, "--steps", "2", "--connect", url, cwd=run_dir)
+        assert result.returncode == 0, describe(result)
+        assert list(run_dir.rglob("*")) == []
+        text = " ".join(result.stdout.replace("│", " ").split())  # the table may wrap a long row
+        assert "streamed to" in text and "(no file: --out records the run too)" in text, result.stdout
+        assert "wrote" not in result.stdout
+    finally:
+        viewer.send_signal(signal.SIGINT)
+        try:
+            viewer.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(viewer.pid, signal.SIGKILL)
+            viewer.wait()
+
+
 def test_sim_writes_the_kernel_cache(tmp_path: Path) -> None:
     """A `tflock sim` run leaves Taichi's kernel cache on disk, so the next run loads its kernels instead of compiling
     them (tens of seconds). The CLI freezes start-up's objects for the garbage collector; objects still frozen at exit

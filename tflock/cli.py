@@ -229,7 +229,8 @@ def sim(
         simulation.close()
         gc.unfreeze()  # frozen objects are never finalized: Taichi would not write its kernel cache at exit
     t_end = time.perf_counter()
-    _summary(simulation, t_start, t_ready, first_step_s, t_loop, t_end, interrupted)
+    streamed = connect or ("a new viewer" if spawn else None)
+    _summary(simulation, t_start, t_ready, first_step_s, t_loop, t_end, interrupted, streamed)
     if interrupted:
         raise typer.Exit(130)
 
@@ -275,7 +276,8 @@ class _StopRequest:
 
 
 def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_loop: float, t_end: float,
-             interrupted: bool) -> None:
+             interrupted: bool, streamed: str | None) -> None:
+    """The table a run ends with; `streamed`: the viewer the run was streamed to (--connect's URL, or --spawn's)."""
     cfg = simulation.config
     done = simulation.step_index
     loop_steps = max(0, done - 1)
@@ -299,11 +301,13 @@ def _summary(simulation, t_start: float, t_ready: float, first_step_s: float, t_
     table.add_row("start-up", f"{t_ready - t_start:.2f} s (Taichi init, first metrics; compile included)")
     table.add_row("first step", f"{first_step_s:.2f} s (compile included)")
     table.add_row("wall time", f"{t_end - t_start:.2f} s")
+    rrd = [p for p in simulation.files if p.suffix == ".rrd"]
+    if streamed:
+        table.add_row("streamed to", streamed + ("" if rrd else " (no file: --out records the run too)"))
     for path in simulation.files:
         step = simulation.checkpoint_steps.get(path)
         table.add_row("wrote", str(path) + (f" (step {step})" if step is not None else ""))
     out.print(table)
-    rrd = [p for p in simulation.files if p.suffix == ".rrd"]
     if rrd:
         out.print(f"view it: [bold]tflock view {rrd[0]}[/] (or `rerun {rrd[0]}`)", highlight=False, soft_wrap=True)
 
