@@ -259,6 +259,70 @@ def test_spawn_without_display(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) 
                  path=tmp_path / "x.rrd")
 
 
+#: fake viewers for --spawn (`python -c CODE --port PORT ...`): one that cannot open its window, one that listens and
+#: then exits as the viewer does where the graphics driver cannot draw, and one that listens until stopped
+FAKE_VIEWERS = {
+    "no-window": "import sys; print('\\x1b[31mERROR\\x1b[0m eframe: no window'); "
+                 "print('Error: app creation error: no adapter.'); sys.exit(1)",
+    "listens-then-exits": "import socket, sys, time; s = socket.socket(); "
+                          "s.bind(('127.0.0.1', int(sys.argv[sys.argv.index('--port') + 1]))); s.listen(); "
+                          "time.sleep(0.2); print('Error: app creation error: R32Float'); sys.exit(1)",
+    "works": "import socket, sys, time; s = socket.socket(); "
+             "s.bind(('127.0.0.1', int(sys.argv[sys.argv.index('--port') + 1]))); s.listen(); time.sleep(5)",
+}
+
+
+@pytest.mark.parametrize("viewer", ["no-window", "listens-then-exits"])
+def test_spawn_where_the_viewer_cannot_start_is_one_line_and_writes_nothing(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, viewer: str) -> None:
+    """A viewer that exits as it starts (a graphics driver it cannot draw with: over ssh -X, or a software
+    rasteriser) is reported with its own reason, before any file is made: Rerun's spawn went on, streamed the run to
+    nobody and said so only at its end, in its own log lines."""
+    import tflock.record as record
+
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(record, "rerun_executable", lambda: [sys.executable, "-c", FAKE_VIEWERS[viewer]])
+    port = _free_port()
+    monkeypatch.setattr(record, "SPAWN_PORT", port)
+    message = "no adapter" if viewer == "no-window" else "R32Float"
+    with pytest.raises(RuntimeError, match=rf"^--spawn: the viewer exited at start: app creation error: {message}; "
+                                           r"watch the run in a browser instead: start `tflock view --live --web`"):
+        Recorder(model="m", config_toml="", world=WorldSpec(2, "open", 1.0), metrics={}, spawn=True,
+                 path=tmp_path / "x.rrd", metrics_table=tmp_path / "x.metrics.csv")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("live", [False, True], ids=["recording", "live"])
+def test_a_native_viewer_that_fails_is_reported(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, live: bool) -> None:
+    """`tflock view FILE` (or --live) whose viewer exits with an error says so, and names the web viewer, instead
+    of returning as if the user had closed it."""
+    import tflock.record as record
+    from tflock.record import open_viewer
+
+    path = tmp_path / "view.rrd"
+    write_run(path, 2, "periodic", edges=False, leader=False)
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(record, "rerun_executable", lambda: [sys.executable, "-c", FAKE_VIEWERS["no-window"]])
+    web = "`tflock view --live --web`" if live else "`tflock view --web`"
+    with pytest.raises(RuntimeError, match=f"^the viewer exited with code 1 .*{web} serves the web viewer"):
+        open_viewer(None if live else path)
+
+
+def test_spawn_uses_a_viewer_that_listens_and_stays(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A viewer that listens and keeps running is the one the run streams to; one already listening is used as it
+    is, and none is started beside it."""
+    import tflock.record as record
+    from tflock.record import _listening, spawn_viewer
+
+    monkeypatch.setattr(record, "rerun_executable", lambda: [sys.executable, "-c", FAKE_VIEWERS["works"]])
+    port = _free_port()
+    started = time.monotonic()
+    spawn_viewer(port)
+    assert time.monotonic() - started >= record.SPAWN_GRACE_S and _listening(port)
+    monkeypatch.setattr(record, "rerun_executable", lambda: pytest.fail("a second viewer was started"))
+    spawn_viewer(port)  # already there (the fake viewer exits by itself after 5 s)
+
+
 #: what a frame draws (the legend's entities, logged once, aside)
 FRAME_ENTITIES = ("/world/agents", "/world/edges", "/profiles", "/world/leader", "/world/virtual_agent")
 #: the components of a frame that change from step to step (the rest are styles, logged when they change)

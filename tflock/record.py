@@ -40,6 +40,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -107,6 +108,11 @@ METRICS = "metrics"
 PROFILES = "profiles"
 
 SPAWN_PORT = 9876
+#: seconds a viewer started by --spawn may take to listen (its first start on a machine loads its shaders)
+SPAWN_TIMEOUT_S = 30.0
+#: seconds a new viewer must keep running once it listens: it listens before it opens its window, and exits where
+#: the graphics driver cannot draw what it needs (about 0.1 s later on this project's VM under Xvfb)
+SPAWN_GRACE_S = 1.5
 EDGE_COLOR = (200, 200, 200, 110)
 #: the colours view's names of marks drawn in their own colours (notes, the field's levels and headings)
 NAME_COLOR = (200, 200, 200)
@@ -480,6 +486,8 @@ class Recorder:
                 "--spawn needs a display (no DISPLAY is set); watch the run in a browser instead: start "
                 "`tflock view --live --web` and pass the URL it prints to --connect"
             )
+        if spawn:  # before any file is made: a viewer that cannot start leaves none
+            spawn_viewer(SPAWN_PORT)
         self.model = model
         self.config_toml = config_toml
         self.world = world
@@ -529,7 +537,6 @@ class Recorder:
                 self._csv_file.flush()
             if self.enabled:
                 if spawn:
-                    self.rec.spawn(port=SPAWN_PORT, connect=False)
                     sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
                 self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
                 self._shown, self._shown_at = self._plot_split(), time.monotonic()
@@ -1286,6 +1293,50 @@ def _wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
     raise RuntimeError(f"the Rerun web viewer did not serve port {port} within {timeout:g} s")
 
 
+def _listening(port: int) -> bool:
+    """Whether something accepts connections on 127.0.0.1:`port`."""
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _exit_reason(log: str, code: int) -> str:
+    """Why a Rerun viewer exited, from its log: its last error line (without colour codes), else its exit code."""
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in log.splitlines()]
+    errors = [line for line in lines if line.startswith("Error:") or " ERROR " in f" {line} "]
+    return errors[-1].removeprefix("Error:").strip().rstrip(".") if errors else f"exit code {code}"
+
+
+def spawn_viewer(port: int = SPAWN_PORT, timeout: float = SPAWN_TIMEOUT_S) -> None:
+    """A native viewer that listens on 127.0.0.1:`port` for a run to stream to: the one already there, or a new one,
+    started in a session of its own (it stays open after the run, and a Ctrl-C that stops the run leaves it) with
+    its log in a temporary file. RuntimeError, naming the viewer's own error, where it exits before it listens (a
+    graphics driver it cannot draw with, as over ``ssh -X`` or with a software rasteriser: else the run would be
+    streamed to nobody, and Rerun would say so only at its end; it listens first, so it must also keep running for
+    :data:`SPAWN_GRACE_S`) or does not listen within `timeout` seconds."""
+    if _listening(port):
+        return
+    log = tempfile.NamedTemporaryFile(prefix="tflock-viewer-", suffix=".log", delete=False)
+    env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
+    with log:
+        proc = subprocess.Popen([*rerun_executable(), "--port", str(port), "--bind", "127.0.0.1", "--memory-limit",
+                                 "75%", "--expect-data-soon"],  # the flags of Rerun's own spawn()
+                                stdin=subprocess.DEVNULL, stdout=log, stderr=log, env=env, start_new_session=True)
+    deadline, settled = time.monotonic() + timeout, None
+    while settled is None or time.monotonic() < settled:  # listening, and still running SPAWN_GRACE_S later
+        if proc.poll() is not None:
+            reason = _exit_reason(Path(log.name).read_text(errors="replace"), proc.returncode)
+            Path(log.name).unlink(missing_ok=True)
+            raise RuntimeError(f"--spawn: the viewer exited at start: {reason}; watch the run in a browser instead: "
+                               "start `tflock view --live --web` and pass the URL it prints to --connect")
+        if settled is None and _listening(port):
+            settled = time.monotonic() + SPAWN_GRACE_S
+        if settled is None and time.monotonic() > deadline:
+            _stop(proc)
+            raise RuntimeError(f"--spawn: the viewer did not listen on port {port} within {timeout:g} s (its log: "
+                               f"{log.name})")
+        time.sleep(0.05)
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.terminate()
@@ -1354,6 +1405,11 @@ def open_viewer(path: Path | None, web: bool = False, port: int | None = None,
     env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env)
     try:
-        proc.wait()
+        code = proc.wait()
     except KeyboardInterrupt:
         _stop(proc)
+        return
+    if code != 0 and not web:  # its own log, above, says why (a graphics driver it cannot draw with, often)
+        raise RuntimeError(f"the viewer exited with code {code} (its log above says why); where it cannot open a "
+                           f"window, `tflock view {'--live ' if path is None else ''}--web` serves the web viewer "
+                           "instead")
