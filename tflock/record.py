@@ -1394,10 +1394,12 @@ def open_viewer(path: Path | None, web: bool = False, port: int | None = None,
             raise RuntimeError(
                 "the native viewer needs a display (no DISPLAY is set); use `tflock view --web`"
             )
-        grpc_port = free_port() if grpc_port is None else grpc_port
-        stream_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-        cmd = [*rerun_executable(), *(["--port", str(grpc_port), "--bind", "127.0.0.1"] if path is None
-                                      else [str(path)])]
+        if path is None:  # a viewer that listens for runs, on a port of 127.0.0.1
+            grpc_port = free_port() if grpc_port is None else grpc_port
+            stream_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+            cmd = [*rerun_executable(), "--port", str(grpc_port), "--bind", "127.0.0.1"]
+        else:
+            cmd = [*rerun_executable(), str(path)]
     if path is None:
         print(f"Stream a run to it: tflock sim --connect {stream_url}", flush=True)
     # Rerun's own log at warnings and above (unless RUST_LOG says otherwise): its info lines, with colour codes and a
