@@ -6,6 +6,7 @@ import contextlib
 import csv
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -952,7 +953,9 @@ def _layouts_in_order(path: Path) -> list[list[str]]:
 def test_a_live_viewer_gets_the_split_while_the_run_goes_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Streaming to a viewer, the layout is sent again as soon as the values split a plot (not only at the end, which
     a long run reaches late), at most once every LIVE_LAYOUT_S; a recording no viewer watches gets no layout before
-    the last."""
+    the last. A watching viewer gets each run's first layout as the active one: it kept the layout an earlier run
+    streamed to it had made active (a second run with other metrics showed the first one's plots, empty, in the web
+    viewer), where a file's first layout stays a default that does not replace the user's."""
     import tflock.record as record
 
     metrics = {"mean_neighbors": "mean", "max_neighbors": "max", "order": "order"}
@@ -980,6 +983,18 @@ def test_a_live_viewer_gets_the_split_while_the_run_goes_on(tmp_path: Path, monk
     assert {"mean_neighbors", "max_neighbors"} <= set(mid_run) and "neighbors" not in mid_run
     (about,) = _last(_chunks(tmp_path / "live.rrd")["/about"], "TextDocument:text")
     assert "- **mean_neighbors** (`mean_neighbors`): mean" in about
+    assert _activations(tmp_path / "live.rrd") == [True, True, True]
+    assert _activations(tmp_path / "file.rrd") == [False, True]
+
+
+def _activations(path: Path) -> list[bool]:
+    """Whether each layout of a recording, in order, is made active where it arrives (Rerun's own print of the
+    file: the Python reader does not give the activation commands)."""
+    from tflock.record import rerun_executable
+
+    printed = subprocess.run([*rerun_executable(), "rrd", "print", "-v", str(path)], capture_output=True, text=True,
+                             check=True).stdout
+    return [flag == "true" for flag in re.findall(r"BlueprintActivationCommand\(.*make_active: (true|false)", printed)]
 
 
 def test_a_plot_of_more_series_than_a_legend_holds_says_how_to_find_their_names(tmp_path: Path) -> None:

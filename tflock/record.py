@@ -538,7 +538,12 @@ class Recorder:
             if self.enabled:
                 if spawn:
                     sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
-                self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
+                # a file's layout is its default (the viewer keeps one the user made for tflock's recordings); a
+                # viewer that watches gets this run's layout at once: it would else keep the layout an earlier run
+                # streamed to it made active, with that run's plots, empty if this run's metrics differ
+                self.rec.set_sinks(*sinks, default_blueprint=None if self.live else self.blueprint())
+                if self.live:
+                    self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
                 self._shown, self._shown_at = self._plot_split(), time.monotonic()
                 self._log_static()
         except BaseException:
