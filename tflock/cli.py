@@ -330,7 +330,8 @@ def config_show(model: Annotated[str, typer.Argument(help="Model name (see `tflo
 
 @app.command()
 def view(
-    path: Annotated[Path | None, typer.Argument(help="Recording (.rrd).", show_default=False)] = None,
+    path: Annotated[Path | None, typer.Argument(help="Recording (.rrd); none with --live.", metavar="PATH",
+                                                show_default=False)] = None,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on localhost (no display needed).")] = False,
     live: Annotated[bool, typer.Option(
         "--live", help="No recording: a viewer that shows runs as they go (tflock sim --connect, the URL printed).")
