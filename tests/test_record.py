@@ -318,10 +318,12 @@ def test_spawn_uses_a_viewer_that_listens_and_stays(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(record, "rerun_executable", lambda: [sys.executable, "-c", FAKE_VIEWERS["works"]])
     port = _free_port()
     started = time.monotonic()
-    spawn_viewer(port)
+    log = spawn_viewer(port)
     assert time.monotonic() - started >= record.SPAWN_GRACE_S and _listening(port)
+    assert log is not None and log.is_file()  # the new viewer's log
+    log.unlink()
     monkeypatch.setattr(record, "rerun_executable", lambda: pytest.fail("a second viewer was started"))
-    spawn_viewer(port)  # already there (the fake viewer exits by itself after 5 s)
+    assert spawn_viewer(port) is None  # already there (the fake viewer exits by itself after 5 s)
 
 
 #: what a frame draws (the legend's entities, logged once, aside)

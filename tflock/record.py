@@ -1311,26 +1311,27 @@ def _exit_reason(log: str, code: int) -> str:
     return errors[-1].removeprefix("Error:").strip().rstrip(".") if errors else f"exit code {code}"
 
 
-def spawn_viewer(port: int = SPAWN_PORT, timeout: float = SPAWN_TIMEOUT_S) -> None:
-    """A native viewer that listens on 127.0.0.1:`port` for a run to stream to: the one already there, or a new one,
-    started in a session of its own (it stays open after the run, and a Ctrl-C that stops the run leaves it) with
-    its log in a temporary file. RuntimeError, naming the viewer's own error, where it exits before it listens (a
-    graphics driver it cannot draw with, as over ``ssh -X`` or with a software rasteriser: else the run would be
-    streamed to nobody, and Rerun would say so only at its end; it listens first, so it must also keep running for
-    :data:`SPAWN_GRACE_S`) or does not listen within `timeout` seconds."""
+def spawn_viewer(port: int = SPAWN_PORT, timeout: float = SPAWN_TIMEOUT_S) -> Path | None:
+    """A native viewer that listens on 127.0.0.1:`port` for a run to stream to: the one already there (None), or a
+    new one, started in a session of its own (it stays open after the run, and a Ctrl-C that stops the run leaves
+    it), whose log file it returns (a new temporary file each time: another user's viewer may have left one).
+    RuntimeError, naming the viewer's own error, where it exits before it listens (a graphics driver it cannot draw
+    with, as over ``ssh -X`` or with a software rasteriser: else the run would be streamed to nobody, and Rerun
+    would say so only at its end; it listens first, so it must also keep running for :data:`SPAWN_GRACE_S`) or
+    does not listen within `timeout` seconds."""
     if _listening(port):
-        return
-    log = tempfile.NamedTemporaryFile(prefix="tflock-viewer-", suffix=".log", delete=False)
+        return None
     env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
-    with log:
+    with tempfile.NamedTemporaryFile("w", prefix="tflock-viewer-", suffix=".log", delete=False) as out:
         proc = subprocess.Popen([*rerun_executable(), "--port", str(port), "--bind", "127.0.0.1", "--memory-limit",
                                  "75%", "--expect-data-soon"],  # the flags of Rerun's own spawn()
-                                stdin=subprocess.DEVNULL, stdout=log, stderr=log, env=env, start_new_session=True)
+                                stdin=subprocess.DEVNULL, stdout=out, stderr=out, env=env, start_new_session=True)
+    log = Path(out.name)
     deadline, settled = time.monotonic() + timeout, None
     while settled is None or time.monotonic() < settled:  # listening, and still running SPAWN_GRACE_S later
         if proc.poll() is not None:
-            reason = _exit_reason(Path(log.name).read_text(errors="replace"), proc.returncode)
-            Path(log.name).unlink(missing_ok=True)
+            reason = _exit_reason(log.read_text(errors="replace"), proc.returncode)
+            log.unlink(missing_ok=True)
             raise RuntimeError(f"--spawn: the viewer exited at start: {reason}; watch the run in a browser instead: "
                                "start `tflock view --live --web` and pass the URL it prints to --connect")
         if settled is None and _listening(port):
@@ -1338,8 +1339,9 @@ def spawn_viewer(port: int = SPAWN_PORT, timeout: float = SPAWN_TIMEOUT_S) -> No
         if settled is None and time.monotonic() > deadline:
             _stop(proc)
             raise RuntimeError(f"--spawn: the viewer did not listen on port {port} within {timeout:g} s (its log: "
-                               f"{log.name})")
+                               f"{log})")
         time.sleep(0.05)
+    return log
 
 
 def _stop(proc: subprocess.Popen) -> None:
