@@ -515,7 +515,7 @@ class Recorder:
         self._styles: float | None = None  # point radius of the styles logged for gathered frames
         self._shape_styles: dict[str, str] = {}  # the style logged for each of the gathered frames' other shapes
         self._shown: list[tuple[str, list[tuple[str, str]]]] = []  # the plots of the layout a live viewer shows
-        self._shown_at = time.monotonic()  # when that layout was sent
+        self._shown_at = 0.0  # when that layout was sent (time.monotonic)
 
         sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
@@ -544,7 +544,7 @@ class Recorder:
                 self.rec.set_sinks(*sinks, default_blueprint=None if self.live else self.blueprint())
                 if self.live:
                     self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
-                self._shown, self._shown_at = self._plot_split(), time.monotonic()
+                    self._shown, self._shown_at = self._plot_split(), time.monotonic()
                 self._log_static()
         except BaseException:
             self.close()
@@ -706,6 +706,10 @@ class Recorder:
             lines += [f"  - {short} (`{name}`): {_markdown_text(self.metrics[name])}" for name, short in members]
         return "\n".join(lines) + "\n"
 
+    def _log_about(self) -> None:
+        """The about page (static: the last one logged wins, so it can follow the layout's split)."""
+        self.rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
+
     def _log_static(self) -> None:
         """Log everything that does not change over the run, once."""
         rec, world = self.rec, self.world
@@ -719,7 +723,7 @@ class Recorder:
             f"Resolved configuration:\n\n{fence}toml\n{toml_text}\n{fence}\n"
         )
         rec.log(CONFIG, rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
-        rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
+        self._log_about()
         rec.log(
             META,
             rr.AnyValues(
@@ -1062,7 +1066,7 @@ class Recorder:
             self.rec.send_columns(f"{METRICS}/{name}", indexes=time_columns(steps, self.world.dt),
                                   columns=rr.Scalars.columns(scalars=values))
         self._pending_since = time.monotonic()
-        if self.live and self.enabled and not self._closed:
+        if self.live and not self._closed:
             self._follow_split()
 
     def _plot_split(self) -> list[tuple[str, list[tuple[str, str]]]]:
@@ -1083,7 +1087,7 @@ class Recorder:
             return
         self._shown, self._shown_at = split, time.monotonic()
         self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
-        self.rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
+        self._log_about()
 
     def constant_metrics(self) -> tuple[str, ...]:
         """The metrics logged with one value at every step after step 0 so far (none before two rows of any metric).
@@ -1118,8 +1122,7 @@ class Recorder:
                 constant = ()
             if self.enabled and self._rows.rows > 1:
                 self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
-                # the about page again (static: the last one wins), naming the plots as this layout splits them
-                self.rec.log(ABOUT, rr.TextDocument(self._about(), media_type=rr.MediaType.MARKDOWN), static=True)
+                self._log_about()  # naming the plots as this layout splits them
             self.rec.disconnect()
         finally:
             if self._csv_file is not None:
@@ -1291,9 +1294,8 @@ def _wait_for_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             raise RuntimeError(f"the Rerun web viewer exited (code {proc.returncode}) before serving port {port}")
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
+        if _listening(port):
+            return
         time.sleep(0.1)
     raise RuntimeError(f"the Rerun web viewer did not serve port {port} within {timeout:g} s")
 
