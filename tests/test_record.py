@@ -1194,21 +1194,58 @@ def _layout_names(path: Path, suffix: str = ":display_name") -> list[str]:
             if key.endswith(suffix) and row[key]]
 
 
-def test_legend_corner_avoids_the_data() -> None:
+def test_legend_goes_to_the_corner_free_of_the_data() -> None:
     """A plot's legend goes to the corner with the fewest of its points under it: a series that decays from the top
     left to the bottom right leaves the right top (the first choice) and the left bottom free; one that rises leaves
-    the left top and right bottom; ties (a flat line in the middle) keep the first choice."""
-    from tflock.record import LEGEND_CORNERS, legend_corner
+    the left top and right bottom; ties (a flat line in the middle) keep the first choice. The legend is as large as
+    measured in the viewer (two series: about 0.4 of the plot's height): Samiloglu's neighbours, a max at 8 and a mean
+    at 4 on a plot of 0-10, leave the bottom free, where a legend half the plot's height would cover the mean."""
+    from tflock.record import LEGEND_CORNERS, place_legend
 
     steps = list(range(100))
     decay = [math.exp(-s / 10) for s in steps]
     rise = [1 - d for d in decay]
-    assert legend_corner([(steps, decay), (steps, [0.5 * d for d in decay])]) == "RightTop"
-    assert legend_corner([(steps, rise), (steps, [0.8 * r for r in rise])]) == "RightBottom"
+    names = ["max", "mean"]
+    assert place_legend([(steps, decay), (steps, [0.5 * d for d in decay])], names) == ("RightTop", None)
+    assert place_legend([(steps, rise), (steps, [0.8 * r for r in rise])], names) == ("RightBottom", None)
     # one series high throughout, one that drops at half time: only the left bottom is free
-    assert legend_corner([(steps, [1.0] * 100), (steps, [1.0 if s < 50 else 0.0 for s in steps])]) == "LeftBottom"
-    assert legend_corner([(steps, [0.5] * 100)]) == LEGEND_CORNERS[0]
-    assert legend_corner([]) == LEGEND_CORNERS[0]
+    assert place_legend([(steps, [1.0] * 100), (steps, [1.0 if s < 50 else 0.0 for s in steps])],
+                        names)[0] == "LeftBottom"
+    assert place_legend([(steps, [8.0] * 100), (steps, [4.0] * 100)], names, (-0.8, 10.8)) == \
+        ("LeftBottom", (-0.8, 10.8))
+    assert place_legend([(steps, [0.5] * 100)], ["order"]) == (LEGEND_CORNERS[0], None)
+    assert place_legend([], []) == (LEGEND_CORNERS[0], None)
+
+
+def test_legend_covering_the_data_everywhere_gets_room_in_the_last_layout() -> None:
+    """Where a legend would cover some points in every corner (a line across the top and one across the bottom), a
+    run's last layout widens the plot's y range at the end that needs the least, until the legend's corner is clear
+    of the points; a layout sent while the run goes on keeps the viewer's fit (later values could leave a fixed range),
+    and so does a plot whose values would be squashed to less than 1 / HEADROOM_MAX of it (four series)."""
+    from tflock.record import HEADROOM_MARGIN, HEADROOM_MAX, LEGEND_EDGE_PX, LEGEND_ROW_PX, PLOT_PX, place_legend
+
+    steps = list(range(100))
+    top = [1.0 + 0.01 * (s % 2) for s in steps]
+    bottom = [0.0 + 0.01 * (s % 3) for s in steps]
+    series = [(steps, top), (steps, bottom)]
+    corner, shown = place_legend(series, ["high", "low"])
+    assert shown is None  # covered somewhere, but not widened while the run goes on
+    corner, widened = place_legend(series, ["high", "low"], headroom=True)
+    assert widened is not None
+    low, high = widened
+    assert low <= 0.0 and high >= 1.01
+    height = (LEGEND_EDGE_PX + 2 * LEGEND_ROW_PX) / PLOT_PX[1] + HEADROOM_MARGIN
+    if corner.endswith("Top"):  # the highest point under the legend's bottom edge
+        assert (1.01 - low) / (high - low) <= 1 - height + 1e-9
+    else:
+        assert (0.02 - low) / (high - low) >= height - 1e-9
+    assert (high - low) <= HEADROOM_MAX * 1.01
+    # a fixed range given (labelled_range's) keeps its far end: the room is added at the legend's end only
+    corner, widened = place_legend(series, ["high", "low"], (-0.1, 1.1), headroom=True)
+    assert widened is not None and (widened[0] == -0.1 or widened[1] == 1.1)
+    # four series spread over the plot: their legend would squash the values to less than half; kept as it was
+    spread = [(steps, [k + 0.01 * (s % 2) for s in steps]) for k in range(4)]
+    assert place_legend(spread, ["a", "b", "c", "d"], headroom=True)[1] is None
 
 
 def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: Path) -> None:
@@ -1218,7 +1255,7 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     its points."""
     from rerun.blueprint.components import Corner2D
 
-    from tflock.record import legend_corner, metric_groups, readable_groups
+    from tflock.record import metric_groups, place_legend, readable_groups
 
     path = tmp_path / "gnf.rrd"
     sim = make_sim(model="vicsek", params={"n": 2000, "box": 32.0}, steps=12, record=path,
@@ -1245,8 +1282,10 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
     for title, members in plots.items():
         if len(members) > 1:
             assert legends[title]["PlotLegend:visible"] == [True]
-            corner = getattr(Corner2D, legend_corner([traces[m] for m in members], recorder._y_range(members)))
-            assert legends[title]["PlotLegend:corner"] == [corner.value]
+            names = [f"box L/{m.rsplit('_', 1)[1]}" for m in members]
+            corner, y_range = place_legend([traces[m] for m in members], names, recorder._y_range(members),
+                                           headroom=True)
+            assert legends[title]["PlotLegend:corner"] == [getattr(Corner2D, corner).value]
 
 
 def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> None:
@@ -1292,6 +1331,32 @@ def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None
     assert axes["order"]["ScalarAxis:range"] == [list(labelled_range(0.003, 0.06))]
     assert "speed" not in axes
     assert "order" not in record(0.15)  # 0.003 to 0.15: 1.5 marks of 0.1, labelled as fitted
+
+
+def test_last_layout_makes_room_for_a_legend_that_covers_lines_everywhere(tmp_path: Path) -> None:
+    """A plot whose two lines run across its top and its bottom (a maximum and a mean neighbour count, each barely
+    moving) leaves its legend no free corner: the layout sent at the end fixes its y range with room for the legend
+    (:func:`place_legend` with headroom), the legend in the corner so cleared; a plot of one series (no legend) keeps
+    the viewer's fit."""
+    from rerun.blueprint.components import Corner2D
+
+    from tflock.record import place_legend
+
+    metrics = {"max_neighbors": "most neighbours", "mean_neighbors": "mean neighbours", "order": "order"}
+    path = tmp_path / "room.rrd"
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=metrics,
+                  path=path) as rec:
+        for step in range(200):
+            rec.log_metrics(step, {"max_neighbors": 7.0 + 0.2 * (step % 2), "mean_neighbors": 4.0 + 0.1 * (step % 3),
+                                   "order": 0.6 + 0.3 * math.exp(-step / 20)})
+        traces = [rec._rows.series(m) for m in ("max_neighbors", "mean_neighbors")]
+        assert rec._y_range(["max_neighbors", "mean_neighbors"]) is None  # 4.0-7.2: labelled as the viewer fits it
+    corner, y_range = place_legend(traces, ["max", "mean"], None, headroom=True)
+    assert y_range is not None and place_legend(traces, ["max", "mean"])[1] is None
+    axes = _plot_components(path, "ScalarAxis")
+    assert axes["neighbors"]["ScalarAxis:range"] == [list(y_range)]
+    assert "order" not in axes
+    assert _plot_components(path)["neighbors"]["PlotLegend:corner"] == [getattr(Corner2D, corner).value]
 
 
 def test_wrapped_angles_plotted_as_points(make_sim, tmp_path: Path) -> None:

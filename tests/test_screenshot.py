@@ -43,7 +43,7 @@ def test_screenshot_shows_agents_y_up_and_the_legend(tmp_path: Path) -> None:
     assert image.shape == (750, 1200, 3)
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
     red = (r > 200) & (g < 60) & (b < 60)
-    world = red[:, : int(1200 * 0.55)]  # the world view: the left three fifths
+    world = red[:, : int(1200 * 0.55)]  # the world view: the left 7 of 12 parts
     rows = np.nonzero(world.any(axis=1))[0]
     assert world.sum() > 400, "no agents drawn in the world view"
     # y up: the agents of the upper half of the box are drawn in the upper half of the view (the view spans the

@@ -353,28 +353,68 @@ PLOTS_PER_TAB = 6
 LEGEND_MAX = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
-def legend_corner(series: list[tuple[list[int], list[float]]], y_range: tuple[float, float] | None = None) -> str:
-    """The corner of a plot (one of :data:`LEGEND_CORNERS`) where its legend covers the fewest of the series'
-    points (steps, values). The legend of k series is taken to cover the outer 0.4 of the plot's width and
-    min(0.9, 0.25 k) of its height (a line of about 22 px a series, on a plot about 100 px high), the plot
-    spanning the points' steps and finite values as the viewer fits them, or `y_range` where the plot fixes it."""
+#: a plot of the metrics grid in the default layout at 1280 x 800, in pixels (width, height), in which the legend's
+#: size below was measured in the web viewer; a larger window's plots are larger, where the legend takes less
+PLOT_PX = (260.0, 130.0)
+#: a legend's height in pixels: a row of 23 px per series and 5 px between it and the plot's edge (two series: 47 px
+#: of box, from 4 px below the plot's top, measured at 1280 x 800)
+LEGEND_ROW_PX, LEGEND_EDGE_PX = 23.0, 5.0
+#: a legend's width in pixels: 7 px a character of its longest name and 35 px for its dot, padding and margin
+LEGEND_CHAR_PX, LEGEND_FRAME_PX = 7.0, 35.0
+#: a plot whose legend would cover some of its points in every corner gets a y range with room for the legend above
+#: (or below) its values, where that range spans at most this many times the values' (else the values would be
+#: drawn too flat: the legend takes the corner where it covers the fewest points)
+HEADROOM_MAX = 2.0
+#: the margin a range with room for the legend leaves beyond the values at its other end, a fraction of their span
+HEADROOM_MARGIN = 0.04
+
+
+def place_legend(series: list[tuple[Sequence[float], Sequence[float]]], names: Sequence[str],
+                 y_range: tuple[float, float] | None = None,
+                 headroom: bool = False) -> tuple[str, tuple[float, float] | None]:
+    """Where a plot's legend goes: the corner of the plot (one of :data:`LEGEND_CORNERS`) where it covers the fewest
+    of the series' points (steps, values), and the plot's y range (`y_range`, None for the viewer's fit). The legend
+    of the series `names` is taken as large as measured in a plot of the default layout (:data:`PLOT_PX`): its
+    longest name's width and a row per series, the plot spanning the points' steps and finite values as the viewer
+    fits them, or `y_range` where the plot fixes it. With `headroom`, where every corner would cover some points, the
+    y range returned is widened at the top (or the bottom) until the legend's corner is clear of them, the corner
+    that needs the least widening, at most :data:`HEADROOM_MAX` times the span (only for a run's last layout: a
+    fixed range would cut off the values still to come)."""
     steps = np.concatenate([np.asarray(s, np.float64) for s, _ in series]) if series else np.zeros(0)
     values = np.concatenate([np.asarray(v, np.float64) for _, v in series]) if series else np.zeros(0)
     keep = np.isfinite(values)
     steps, values = steps[keep], values[keep]
     if steps.size == 0:
-        return LEGEND_CORNERS[0]
+        return LEGEND_CORNERS[0], y_range
     x = (steps - steps.min()) / max(np.ptp(steps), 1e-300)
-    low, high = y_range if y_range is not None else (values.min(), values.max())
+    low, high = y_range if y_range is not None else (float(values.min()), float(values.max()))
     y = (values - low) / (high - low) if high > low else np.full(values.shape, 0.5)
-    width, height = 0.4, min(0.9, 0.25 * len(series))
-    covered = {
-        "RightTop": np.count_nonzero((x > 1 - width) & (y > 1 - height)),
-        "LeftBottom": np.count_nonzero((x < width) & (y < height)),
-        "RightBottom": np.count_nonzero((x > 1 - width) & (y < height)),
-        "LeftTop": np.count_nonzero((x < width) & (y > 1 - height)),
-    }
-    return min(LEGEND_CORNERS, key=lambda corner: covered[corner])  # min keeps the first of equals
+    longest = max((len(name) for name in names), default=0)
+    width = min(1.0, (LEGEND_FRAME_PX + LEGEND_CHAR_PX * longest) / PLOT_PX[0])
+    height = min(1.0, (LEGEND_EDGE_PX + LEGEND_ROW_PX * len(series)) / PLOT_PX[1])
+    left, right = x < width, x > 1 - width
+    top, bottom = y > 1 - height, y < height
+    covered = {"RightTop": right & top, "LeftBottom": left & bottom, "RightBottom": right & bottom,
+               "LeftTop": left & top}
+    counts = {corner: int(np.count_nonzero(under)) for corner, under in covered.items()}
+    best = min(LEGEND_CORNERS, key=lambda corner: counts[corner])  # min keeps the first of equals
+    clear = height + HEADROOM_MARGIN  # the legend and a gap under (or above) it
+    if counts[best] == 0 or not headroom or not high > low or clear >= 1:
+        return best, y_range
+    widened: dict[str, tuple[float, float]] = {}
+    for corner in LEGEND_CORNERS:
+        band = values[left if corner.startswith("Left") else right]
+        if corner.endswith("Top"):  # the band's highest value just under the legend, the range's top moved up
+            below = low - (HEADROOM_MARGIN * (high - low) if y_range is None else 0.0)
+            widened[corner] = (below, below + (band.max() - below) / (1 - clear))
+        else:
+            above = high + (HEADROOM_MARGIN * (high - low) if y_range is None else 0.0)
+            widened[corner] = (above - (above - band.min()) / (1 - clear), above)
+        widened[corner] = (min(widened[corner][0], low), max(widened[corner][1], high))
+    corner = min(LEGEND_CORNERS, key=lambda c: widened[c][1] - widened[c][0])
+    if widened[corner][1] - widened[corner][0] > HEADROOM_MAX * (high - low):
+        return best, y_range
+    return corner, widened[corner]
 
 
 #: decade marks across a plot's values above which Rerun labels none of them on a plot of the default layout at
@@ -551,11 +591,12 @@ class Recorder:
             raise
 
     # ------------------------------------------------------------------ layout
-    def blueprint(self, constant: tuple[str, ...] = ()) -> rrb.Blueprint:
+    def blueprint(self, constant: tuple[str, ...] = (), final: bool = False) -> rrb.Blueprint:
         """The default layout: the world view largest on the left (in 3D above the field's three projections); on
         the right the colour legend above tabs of the metric plots (:meth:`_metric_tabs`; the `constant` series
         in one plot of their own, last), the profiles' bar charts, the about document and the
-        config. Side panels collapsed, the time panel a single bar."""
+        config. Side panels collapsed, the time panel a single bar. `final`: the run's last layout, whose plots may
+        fix their y ranges to make room for their legends (:meth:`_legend`)."""
         world = self.world
         if world.dim == 2:
             bounds = None
@@ -578,7 +619,7 @@ class Recorder:
             projections = [rrb.Spatial2DView(name=f"field {plane}", origin=f"/{FIELD_3D}",
                                              contents=[f"/{FIELD_3D}/{plane}/**"]) for plane in ("xy", "xz", "yz")]
             left = rrb.Vertical(world_view, rrb.Horizontal(*projections), row_shares=[3, 1])
-        metrics = self._metric_tabs(constant)
+        metrics = self._metric_tabs(constant, final)
         # named in words, no legend (its one entry would be the entity path); the about page says what the bars are
         profiles = [rrb.BarChartView(name=_profile_title(n), origin=f"/{PROFILES}/{n}",
                                      plot_legend=rrb.PlotLegend(visible=False)) for n in self.profiles]
@@ -588,7 +629,9 @@ class Recorder:
         if self._has_legend():
             right = rrb.Vertical(rrb.Spatial2DView(name="colours", origin=f"/{LEGEND}"), right, row_shares=[1, 3])
         return rrb.Blueprint(
-            rrb.Horizontal(left, right, column_shares=[3, 2]),
+            # the world about as wide as it is high at 1280 x 800 (a square box drawn no smaller than with a wider
+            # view), the rest to the plots: at 3 : 2 a title of 22 characters was cut off in the plots' grid
+            rrb.Horizontal(left, right, column_shares=[7, 5]),
             rrb.BlueprintPanel(state="collapsed"),
             rrb.SelectionPanel(state="collapsed"),
             rrb.TimePanel(state="collapsed", timeline="step"),
@@ -597,12 +640,12 @@ class Recorder:
     def _has_legend(self) -> bool:
         return self.legend is not None or self.field
 
-    def _metric_tabs(self, constant: tuple[str, ...]) -> list[rrb.Container | rrb.View]:
+    def _metric_tabs(self, constant: tuple[str, ...], final: bool = False) -> list[rrb.Container | rrb.View]:
         """The metric plots in tabs of at most :data:`PLOTS_PER_TAB` ("metrics", "metrics 2", ...), in two columns
         above 4; the plot of the `constant` series takes no place in a tab's grid: it is a strip under the last tab,
         three quarters of a row high, as a flat line needs little height (Vicsek's 12 plots and its constant one in
         two tabs, where a third tab held that one plot alone)."""
-        plots = self._plots(constant)
+        plots = self._plots(constant, final)
         strip = plots.pop() if constant and len(plots) > 1 else None
         pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
         tabs: list[rrb.Container | rrb.View] = []
@@ -617,9 +660,10 @@ class Recorder:
             tabs.append(tab)
         return tabs
 
-    def _plots(self, constant: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
+    def _plots(self, constant: tuple[str, ...], final: bool = False) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`, split where their sizes differ too much:
-        :func:`readable_groups`), the groups of ``first_plots`` first, constant series in one plot, last."""
+        :func:`readable_groups`), the groups of ``first_plots`` first, constant series in one plot, last; `final`:
+        the run's last layout (:meth:`_legend`)."""
         varying = [n for n in self.metrics if n not in constant]
         groups = readable_groups(metric_groups(varying), self._rows.extent)
         first = [g for m in self.first_plots for g, members in groups.items() if m in dict(members)]
@@ -627,11 +671,11 @@ class Recorder:
         for group in dict.fromkeys([*first, *groups]):  # the first plots', then the rest in the metrics' order
             members = groups[group]
             names = [m for m, _ in members]
-            y_range = self._y_range(names)
             title = group if len(names) <= LEGEND_MAX else f"{group} (hover names)"
+            legend, y_range = self._legend(members, self._y_range(names), final)
             views.append(rrb.TimeSeriesView(
                 name=title, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
-                plot_legend=self._legend(names, y_range), axis_x=WHOLE_RUN,
+                plot_legend=legend, axis_x=WHOLE_RUN,
                 axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range)))
         if constant:  # one: named in the title; more: named in the legend (a long title is cut off), by their full
             # names: a series' short name is that of its group's plot ("min" of valency_min); too many for a legend:
@@ -641,7 +685,7 @@ class Recorder:
                 title = f"constant: {len(constant)} series (hover a line for its name)"
             views.append(rrb.TimeSeriesView(
                 name=title, origin=f"/{METRICS}",
-                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend(list(constant), None),
+                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend([(m, m) for m in constant])[0],
                 axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m, **_series_color(k, constant))
                                              for k, m in enumerate(constant)}))
         return views
@@ -651,13 +695,17 @@ class Recorder:
         extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
         return labelled_range(*value_span(extents)) if extents else None
 
-    def _legend(self, members: list[str], y_range: tuple[float, float] | None) -> rrb.PlotLegend:
-        """A plot's legend: shown for 2 to LEGEND_MAX series, in the corner where it covers the fewest of their points
-        so far (:func:`legend_corner`) on the plot's y range (None: the viewer's fit)."""
+    def _legend(self, members: list[tuple[str, str]], y_range: tuple[float, float] | None = None,
+                final: bool = False) -> tuple[rrb.PlotLegend, tuple[float, float] | None]:
+        """A plot's legend of its (metric, name in the legend) `members` and its y range (`y_range`, None: the
+        viewer's fit): the legend shown for 2 to LEGEND_MAX series, in the corner where it covers the fewest of their
+        points so far; in a run's `final` layout, the range widened for it where it would cover some in every corner
+        (:func:`place_legend`)."""
         if not 1 < len(members) <= LEGEND_MAX:
-            return rrb.PlotLegend(visible=False)
-        corner = legend_corner([self._rows.series(m) for m in members], y_range)
-        return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True)
+            return rrb.PlotLegend(visible=False), y_range
+        corner, y_range = place_legend([self._rows.series(m) for m, _ in members], [name for _, name in members],
+                                       y_range, headroom=final)
+        return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True), y_range
 
     def _about(self) -> str:
         """Markdown: what the world view draws and every metric's description, by plot as the layout groups them
@@ -1107,7 +1155,8 @@ class Recorder:
         """Flush and finalise the recording (writes the .rrd footer) and close the CSV. Idempotent.
 
         The layout is sent again once the run has more than one row of metrics: series that never changed share one
-        plot, out of the way of the others, each legend goes where it covers the fewest points, and a plot that would
+        plot, out of the way of the others, each legend goes where it covers the fewest points (where it would cover
+        some wherever it went, the plot's y range leaves room for it), and a plot that would
         show no numbers on its y axis gets a labelled range (:func:`labelled_range`; the viewer opens a file with the
         last layout it holds); a group of series too different in size is split (:func:`readable_groups`), and the
         about page is written again to name the plots so."""
@@ -1121,7 +1170,7 @@ class Recorder:
             if len(constant) == len(self.metrics):  # nothing changed: no plot stands apart
                 constant = ()
             if self.enabled and self._rows.rows > 1:
-                self.rec.send_blueprint(self.blueprint(constant), make_active=True, make_default=True)
+                self.rec.send_blueprint(self.blueprint(constant, final=True), make_active=True, make_default=True)
                 self._log_about()  # naming the plots as this layout splits them
             self.rec.disconnect()
         finally:
