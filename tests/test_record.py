@@ -1243,6 +1243,12 @@ def test_legend_covering_the_data_everywhere_gets_room_in_the_last_layout() -> N
     # a fixed range given (labelled_range's) keeps its far end: the room is added at the legend's end only
     corner, widened = place_legend(series, ["high", "low"], (-0.1, 1.1), headroom=True)
     assert widened is not None and (widened[0] == -0.1 or widened[1] == 1.1)
+    # the strip of constant series (two lines at 0, drawn at half height by the viewer's fit, under the legend in
+    # every corner of a strip 90 px high): a range with the lines under the legend
+    corner, widened = place_legend([(steps, [0.0] * 100), (steps, [0.0] * 100)], ["connected", "valency_min"],
+                                   headroom=True, size_px=(500.0, 90.0))
+    assert widened is not None and corner.endswith("Top")
+    assert (0.0 - widened[0]) / (widened[1] - widened[0]) <= 1 - (LEGEND_EDGE_PX + 2 * LEGEND_ROW_PX) / 90.0
     # four series spread over the plot: their legend would squash the values to less than half; kept as it was
     spread = [(steps, [k + 0.01 * (s % 2) for s in steps]) for k in range(4)]
     assert place_legend(spread, ["a", "b", "c", "d"], headroom=True)[1] is None
@@ -1310,27 +1316,44 @@ def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> No
 
 
 def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None:
-    """The layout sent at the end fixes the y range of a plot whose values span too many marks to be labelled
-    (:func:`labelled_range`), from the smallest and largest of all the rows logged, not only of those kept for
-    placing legends (a spike of 0.15 in a dropped row takes the range away: 0.003 to 0.15 is labelled as fitted);
-    a plot labelled as fitted keeps the fit."""
+    """The layout sent at the end fixes the y range of a plot whose values span too many marks to be labelled on
+    it (:func:`labelled_range` at the plot's height: two plots in a column of the tabs without the colours view,
+    about 300 px high, label up to about 9 marks), from the smallest and largest of all the rows logged, not only of
+    those kept for placing legends (a spike of 0.15 in a dropped row takes the range away: 0.002 to 0.15 is
+    labelled as fitted); a plot labelled as fitted keeps the fit."""
     from tflock.metric_log import TRACE_POINTS
-    from tflock.record import labelled_range
+    from tflock.record import labelled_range, plot_px
 
     def record(spike: float) -> dict[str, dict[str, list]]:
         path = tmp_path / f"dense-{spike}.rrd"
         with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS,
                       path=path) as rec:
             for step in range(2 * TRACE_POINTS + 2):
-                order = spike if step == 2 * TRACE_POINTS + 1 else 0.003 + 0.047 * (step % 7) / 6
+                order = spike if step == 2 * TRACE_POINTS + 1 else 0.002 + 0.088 * (step % 7) / 6
                 rec.log_metrics(step, {"order": order, "speed": 83.0 + 2.6 * (step % 5) / 4})
             assert rec._rows.series("order")[1].max() < spike  # the spike's row is not among those kept
         return _plot_components(path, "ScalarAxis")
 
-    axes = record(0.06)
-    assert axes["order"]["ScalarAxis:range"] == [list(labelled_range(0.003, 0.06))]
+    height = plot_px(1, 2, colours=False)[1]
+    fixed = labelled_range(0.002, 0.099, height)
+    assert fixed is not None and labelled_range(0.002, 0.06, height) is None  # 9.7 marks of 0.01 are too many, 5.8 not
+    axes = record(0.099)
+    assert axes["order"]["ScalarAxis:range"] == [list(fixed)]
     assert "speed" not in axes
-    assert "order" not in record(0.15)  # 0.003 to 0.15: 1.5 marks of 0.1, labelled as fitted
+    assert "order" not in record(0.15)  # 0.002 to 0.15: 1.5 marks of 0.1, labelled as fitted
+
+
+def test_short_plots_label_fewer_marks_and_fit_their_legends() -> None:
+    """A plot's labels and its legend are judged at its height in the default layout: min_distance in [0.25, 0.6]
+    (3.5 marks of 0.1) is labelled as fitted on a plot of the first tab's 3 x 2 grid (130 px) but gets the range 0 to
+    1 on one 64 px high; four plots share a tab in two columns, not one (their legends and labels need the height)."""
+    from tflock.record import PLOT_PX, grid_columns, labelled_range, plot_px
+
+    assert labelled_range(0.25, 0.6) is None and labelled_range(0.25, 0.6, PLOT_PX[1]) is None
+    assert labelled_range(0.25, 0.6, 64.0) == pytest.approx((-0.08, 1.08))
+    assert [grid_columns(k) for k in range(1, 7)] == [1, 1, 1, 2, 2, 2]
+    assert abs(plot_px(2, 3)[1] - PLOT_PX[1]) < 5 and abs(plot_px(2, 3)[0] - PLOT_PX[0]) < 20
+    assert plot_px(2, 2 + 0.75)[1] > 120  # four plots and the strip of constant series under the colours view
 
 
 def test_last_layout_makes_room_for_a_legend_that_covers_lines_everywhere(tmp_path: Path) -> None:
@@ -1340,7 +1363,7 @@ def test_last_layout_makes_room_for_a_legend_that_covers_lines_everywhere(tmp_pa
     the viewer's fit."""
     from rerun.blueprint.components import Corner2D
 
-    from tflock.record import place_legend
+    from tflock.record import place_legend, plot_px
 
     metrics = {"max_neighbors": "most neighbours", "mean_neighbors": "mean neighbours", "order": "order"}
     path = tmp_path / "room.rrd"
@@ -1351,8 +1374,9 @@ def test_last_layout_makes_room_for_a_legend_that_covers_lines_everywhere(tmp_pa
                                    "order": 0.6 + 0.3 * math.exp(-step / 20)})
         traces = [rec._rows.series(m) for m in ("max_neighbors", "mean_neighbors")]
         assert rec._y_range(["max_neighbors", "mean_neighbors"]) is None  # 4.0-7.2: labelled as the viewer fits it
-    corner, y_range = place_legend(traces, ["max", "mean"], None, headroom=True)
-    assert y_range is not None and place_legend(traces, ["max", "mean"])[1] is None
+    size = plot_px(1, 2, colours=False)  # two plots in a column, no colours view: the layout's plot
+    corner, y_range = place_legend(traces, ["max", "mean"], None, headroom=True, size_px=size)
+    assert y_range is not None and place_legend(traces, ["max", "mean"], size_px=size)[1] is None
     axes = _plot_components(path, "ScalarAxis")
     assert axes["neighbors"]["ScalarAxis:range"] == [list(y_range)]
     assert "order" not in axes

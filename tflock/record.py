@@ -348,14 +348,29 @@ SWATCH_STEP = 0.45
 #: plots in a tab at most (3 rows of 2; about 150 px a plot at 1280 x 800, where 12 left about 70 px, too little for
 #: their axis labels): more go to tabs "metrics 2", "metrics 3"
 PLOTS_PER_TAB = 6
+#: the height of the strip of constant series under a tab's grid, in rows of the grid
+STRIP_ROWS = 0.75
+
+
+def grid_columns(count: int) -> int:
+    """Columns of a metric tab's grid of `count` plots: two from 4 plots (four in one column under the colours view
+    were 64 px high each at 1280 x 800: too low for a legend of two series, and their y axes went unlabelled)."""
+    return 2 if count >= 4 else 1
+
+
 #: series a plot's legend names at most: more would not fit a plot of the grid (about 150 px high) and cover its
 #: lines; the title of a plot of more says how to find their names (hover a line)
 LEGEND_MAX = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
-#: a plot of the metrics grid in the default layout at 1280 x 800, in pixels (width, height), in which the legend's
-#: size below was measured in the web viewer; a larger window's plots are larger, where the legend takes less
-PLOT_PX = (260.0, 130.0)
+#: a plot of the metrics grid in the default layout at 1280 x 800, in pixels (width, height; 3 rows of 2 under the
+#: colours view), in which the legend's size below and the labels of :data:`DENSE_MARKS` were measured in the web
+#: viewer; a larger window's plots are larger, where the legend takes less
+PLOT_PX = (240.0, 130.0)
+#: the metric tabs' area in the default layout at 1280 x 800, in pixels: its width, its height under the colours
+#: view and without it; each plot of a tab's grid (:func:`plot_px`) loses TILE_MARGIN_PX to its title bar and axes
+TABS_PX = (533.0, 520.0, 704.0)
+TILE_MARGIN_PX = (26.0, 45.0)
 #: a legend's height in pixels: a row of 23 px per series and 5 px between it and the plot's edge (two series: 47 px
 #: of box, from 4 px below the plot's top, measured at 1280 x 800)
 LEGEND_ROW_PX, LEGEND_EDGE_PX = 23.0, 5.0
@@ -369,17 +384,24 @@ HEADROOM_MAX = 2.0
 HEADROOM_MARGIN = 0.04
 
 
+def plot_px(columns: int, rows: float, colours: bool = True) -> tuple[float, float]:
+    """The size in pixels of one plot of a metric tab's grid of `columns` x `rows` (a strip counted as its share of a
+    row) in the default layout at 1280 x 800, under the colours view or (`colours` False) without it."""
+    width, under, alone = TABS_PX
+    return width / columns - TILE_MARGIN_PX[0], (under if colours else alone) / rows - TILE_MARGIN_PX[1]
+
+
 def place_legend(series: list[tuple[Sequence[float], Sequence[float]]], names: Sequence[str],
-                 y_range: tuple[float, float] | None = None,
-                 headroom: bool = False) -> tuple[str, tuple[float, float] | None]:
+                 y_range: tuple[float, float] | None = None, headroom: bool = False,
+                 size_px: tuple[float, float] = PLOT_PX) -> tuple[str, tuple[float, float] | None]:
     """Where a plot's legend goes: the corner of the plot (one of :data:`LEGEND_CORNERS`) where it covers the fewest
     of the series' points (steps, values), and the plot's y range (`y_range`, None for the viewer's fit). The legend
-    of the series `names` is taken as large as measured in a plot of the default layout (:data:`PLOT_PX`): its
-    longest name's width and a row per series, the plot spanning the points' steps and finite values as the viewer
-    fits them, or `y_range` where the plot fixes it. With `headroom`, where every corner would cover some points, the
-    y range returned is widened at the top (or the bottom) until the legend's corner is clear of them, the corner
-    that needs the least widening, at most :data:`HEADROOM_MAX` times the span (only for a run's last layout: a
-    fixed range would cut off the values still to come)."""
+    of the series `names` is taken as large as measured in the viewer (its longest name's width and a row per
+    series) on a plot of `size_px` (:func:`plot_px`), the plot spanning the points' steps and finite values as the
+    viewer fits them, or `y_range` where the plot fixes it. With `headroom`, where every corner would cover some
+    points, the y range returned is widened at the top (or the bottom) until the legend's corner is clear of them,
+    the corner that needs the least widening, at most :data:`HEADROOM_MAX` times the span (only for a run's last
+    layout: a fixed range would cut off the values still to come)."""
     steps = np.concatenate([np.asarray(s, np.float64) for s, _ in series]) if series else np.zeros(0)
     values = np.concatenate([np.asarray(v, np.float64) for _, v in series]) if series else np.zeros(0)
     keep = np.isfinite(values)
@@ -388,10 +410,14 @@ def place_legend(series: list[tuple[Sequence[float], Sequence[float]]], names: S
         return LEGEND_CORNERS[0], y_range
     x = (steps - steps.min()) / max(np.ptp(steps), 1e-300)
     low, high = y_range if y_range is not None else (float(values.min()), float(values.max()))
-    y = (values - low) / (high - low) if high > low else np.full(values.shape, 0.5)
+    if not high > low:  # one value (constant series): at half height of a range of its size around it (the
+        # viewer's fit of 0 is -1 to 1)
+        half = max(1.0, abs(low))
+        low, high = low - half, high + half
+    y = (values - low) / (high - low)
     longest = max((len(name) for name in names), default=0)
-    width = min(1.0, (LEGEND_FRAME_PX + LEGEND_CHAR_PX * longest) / PLOT_PX[0])
-    height = min(1.0, (LEGEND_EDGE_PX + LEGEND_ROW_PX * len(series)) / PLOT_PX[1])
+    width = min(1.0, (LEGEND_FRAME_PX + LEGEND_CHAR_PX * longest) / size_px[0])
+    height = min(1.0, (LEGEND_EDGE_PX + LEGEND_ROW_PX * len(series)) / size_px[1])
     left, right = x < width, x > 1 - width
     top, bottom = y > 1 - height, y < height
     covered = {"RightTop": right & top, "LeftBottom": left & bottom, "RightBottom": right & bottom,
@@ -399,7 +425,7 @@ def place_legend(series: list[tuple[Sequence[float], Sequence[float]]], names: S
     counts = {corner: int(np.count_nonzero(under)) for corner, under in covered.items()}
     best = min(LEGEND_CORNERS, key=lambda corner: counts[corner])  # min keeps the first of equals
     clear = height + HEADROOM_MARGIN  # the legend and a gap under (or above) it
-    if counts[best] == 0 or not headroom or not high > low or clear >= 1:
+    if counts[best] == 0 or not headroom or clear >= 1:
         return best, y_range
     widened: dict[str, tuple[float, float]] = {}
     for corner in LEGEND_CORNERS:
@@ -418,26 +444,27 @@ def place_legend(series: list[tuple[Sequence[float], Sequence[float]]], names: S
 
 
 #: decade marks across a plot's values above which Rerun labels none of them on a plot of the default layout at
-#: 1280 x 800 (about 130 px high: a plot labels only decades, ... 0.01, 0.1, 1, 10 ..., and only marks about 25 px
-#: apart or more): polarization in [0.003, 0.068] (6.5 marks of 0.01) had no labels
+#: 1280 x 800 (:data:`PLOT_PX`, 130 px high: a plot labels only decades, ... 0.01, 0.1, 1, 10 ..., and only marks
+#: about 25 px apart or more): polarization in [0.003, 0.068] (6.5 marks of 0.01) had no labels. A plot of another
+#: height labels proportionally as many (min_distance in [0.25, 0.6], 3.5 marks of 0.1, had none 64 px high)
 DENSE_MARKS = 4
 #: the margin, a fraction of the range, that :func:`labelled_range` leaves beyond its two labelled marks
 LABEL_MARGIN = 0.08
 
 
-def labelled_range(low: float, high: float) -> tuple[float, float] | None:
+def labelled_range(low: float, high: float, height_px: float = PLOT_PX[1]) -> tuple[float, float] | None:
     """A fixed y range for a plot of values in [low, high] that would otherwise have no labels on its axis: where
-    the values span more than :data:`DENSE_MARKS` marks of their decade (marks too close to be labelled on a plot
-    of the default layout) and lie between two neighbouring marks of the decade above (the next labelled ones),
+    the values span more marks of their decade than a plot `height_px` high labels (:data:`DENSE_MARKS` on one of
+    the default grid's, 130 px) and lie between two neighbouring marks of the decade above (the next labelled ones),
     those two with a margin: the values then fill at least a third of the plot, between two labelled marks. Else
     None: the viewer's own fit, which labels the marks of the values' decade, or one mark of the decade above
-    inside the values. Applied whatever a plot's height: a taller plot would label the finer marks too, but the
-    range stays readable."""
+    inside the values. A larger window's taller plots would label the finer marks too, but the range stays
+    readable."""
     span = high - low
     if not (math.isfinite(span) and span > 0):
         return None
     decade = 10.0 ** math.floor(math.log10(span))
-    if span / decade <= DENSE_MARKS:
+    if span / decade <= DENSE_MARKS * height_px / PLOT_PX[1]:
         return None
     step = 10 * decade
     bottom = math.floor(low / step + 1e-9) * step  # (0.3 / 0.1 is 2.9999999999999996)
@@ -642,23 +669,39 @@ class Recorder:
 
     def _metric_tabs(self, constant: tuple[str, ...], final: bool = False) -> list[rrb.Container | rrb.View]:
         """The metric plots in tabs of at most :data:`PLOTS_PER_TAB` ("metrics", "metrics 2", ...), in two columns
-        above 4; the plot of the `constant` series takes no place in a tab's grid: it is a strip under the last tab,
-        three quarters of a row high, as a flat line needs little height (Vicsek's 12 plots and its constant one in
-        two tabs, where a third tab held that one plot alone)."""
+        from 4 (:func:`grid_columns`); the plot of the `constant` series takes no place in a tab's grid: it is a strip
+        under the last tab, three quarters of a row high, as a flat line needs little height (Vicsek's 12 plots and
+        its constant one in two tabs, where a third tab held that one plot alone)."""
         plots = self._plots(constant, final)
         strip = plots.pop() if constant and len(plots) > 1 else None
         pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
         tabs: list[rrb.Container | rrb.View] = []
         for k, page in enumerate(pages):
             name = "metrics" if k == 0 else f"metrics {k + 1}"
-            columns = 2 if len(page) > 4 else 1
+            columns = grid_columns(len(page))
             tab: rrb.Container | rrb.View = rrb.Grid(*page, grid_columns=columns, name=name) if len(page) > 1 \
                 else page[0]
             if strip is not None and k == len(pages) - 1:
                 rows = -(-len(page) // columns)
-                tab = rrb.Vertical(tab, strip, row_shares=[rows, 0.75], name=name)
+                tab = rrb.Vertical(tab, strip, row_shares=[rows, STRIP_ROWS], name=name)
             tabs.append(tab)
         return tabs
+
+    def _plot_sizes(self, count: int, strip: bool) -> list[tuple[float, float]]:
+        """The size in pixels (:func:`plot_px`) of each of `count` plots as :meth:`_metric_tabs` lays them out in
+        the default layout at 1280 x 800, the last of them the strip of constant series where `strip`."""
+        grid = count - 1 if strip else count
+        colours = self._has_legend()
+        sizes: list[tuple[float, float]] = []
+        rows = 1.0
+        for first in range(0, grid, PLOTS_PER_TAB):
+            on_page = min(PLOTS_PER_TAB, grid - first)
+            columns = grid_columns(on_page)
+            rows = -(-on_page // columns) + (STRIP_ROWS if strip and first + on_page == grid else 0.0)
+            sizes += [plot_px(columns, rows, colours)] * on_page
+        if strip:  # its share of the last page's rows
+            sizes.append(plot_px(1, rows / STRIP_ROWS, colours))
+        return sizes
 
     def _plots(self, constant: tuple[str, ...], final: bool = False) -> list[rrb.TimeSeriesView]:
         """One plot per group of related metrics (:func:`metric_groups`, split where their sizes differ too much:
@@ -667,12 +710,15 @@ class Recorder:
         varying = [n for n in self.metrics if n not in constant]
         groups = readable_groups(metric_groups(varying), self._rows.extent)
         first = [g for m in self.first_plots for g, members in groups.items() if m in dict(members)]
+        order = list(dict.fromkeys([*first, *groups]))  # the first plots', then the rest in the metrics' order
+        count = len(order) + (1 if constant else 0)
+        sizes = self._plot_sizes(count, bool(constant) and count > 1)
         views = []
-        for group in dict.fromkeys([*first, *groups]):  # the first plots', then the rest in the metrics' order
+        for group, size in zip(order, sizes[:len(order)], strict=True):
             members = groups[group]
             names = [m for m, _ in members]
             title = group if len(names) <= LEGEND_MAX else f"{group} (hover names)"
-            legend, y_range = self._legend(members, self._y_range(names), final)
+            legend, y_range = self._legend(members, self._y_range(names, size), final, size)
             views.append(rrb.TimeSeriesView(
                 name=title, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
                 plot_legend=legend, axis_x=WHOLE_RUN,
@@ -683,28 +729,31 @@ class Recorder:
             title = "constant" + (f": {constant[0]}" if len(constant) == 1 else "")
             if len(constant) > LEGEND_MAX:
                 title = f"constant: {len(constant)} series (hover a line for its name)"
+            legend, y_range = self._legend([(m, m) for m in constant], None, final, sizes[-1])
             views.append(rrb.TimeSeriesView(
-                name=title, origin=f"/{METRICS}",
-                contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=self._legend([(m, m) for m in constant])[0],
-                axis_x=WHOLE_RUN, overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m, **_series_color(k, constant))
-                                             for k, m in enumerate(constant)}))
+                name=title, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in constant], plot_legend=legend,
+                axis_x=WHOLE_RUN, axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
+                overrides={f"/{METRICS}/{m}": rr.SeriesLines(names=m, **_series_color(k, constant))
+                           for k, m in enumerate(constant)}))
         return views
 
-    def _y_range(self, members: list[str]) -> tuple[float, float] | None:
-        """A plot's fixed y range: :func:`labelled_range` of its series' values so far, or None (the viewer's fit)."""
+    def _y_range(self, members: list[str], size: tuple[float, float] = PLOT_PX) -> tuple[float, float] | None:
+        """A plot's fixed y range: :func:`labelled_range` of its series' values so far on a plot of `size` pixels, or
+        None (the viewer's fit)."""
         extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
-        return labelled_range(*value_span(extents)) if extents else None
+        return labelled_range(*value_span(extents), size[1]) if extents else None
 
     def _legend(self, members: list[tuple[str, str]], y_range: tuple[float, float] | None = None,
-                final: bool = False) -> tuple[rrb.PlotLegend, tuple[float, float] | None]:
+                final: bool = False, size: tuple[float, float] = PLOT_PX
+                ) -> tuple[rrb.PlotLegend, tuple[float, float] | None]:
         """A plot's legend of its (metric, name in the legend) `members` and its y range (`y_range`, None: the
-        viewer's fit): the legend shown for 2 to LEGEND_MAX series, in the corner where it covers the fewest of their
-        points so far; in a run's `final` layout, the range widened for it where it would cover some in every corner
-        (:func:`place_legend`)."""
+        viewer's fit), on a plot of `size` pixels: the legend shown for 2 to LEGEND_MAX series, in the corner where it
+        covers the fewest of their points so far; in a run's `final` layout, the range widened for it where it would
+        cover some in every corner (:func:`place_legend`)."""
         if not 1 < len(members) <= LEGEND_MAX:
             return rrb.PlotLegend(visible=False), y_range
         corner, y_range = place_legend([self._rows.series(m) for m, _ in members], [name for _, name in members],
-                                       y_range, headroom=final)
+                                       y_range, headroom=final, size_px=size)
         return rrb.PlotLegend(getattr(rrb.components.Corner2D, corner), visible=True), y_range
 
     def _about(self) -> str:
