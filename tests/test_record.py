@@ -1285,12 +1285,16 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
              for title, members in readable_groups(metric_groups(list(traces)), recorder._rows.extent).items()}
     assert sorted(m for members in plots.values() for m in members) == sorted(traces)
     assert all(title.startswith("gnf_std") for title in plots) and any(len(m) > 1 for m in plots.values())
+    constant = recorder.constant_metrics()
+    views = [str(view.name) for view in recorder._plots(constant, final=True)]
+    size_of = dict(zip(views, recorder._plot_sizes(len(views), bool(constant) and len(views) > 1), strict=True))
     for title, members in plots.items():
         if len(members) > 1:
             assert legends[title]["PlotLegend:visible"] == [True]
             names = [f"box L/{m.rsplit('_', 1)[1]}" for m in members]
-            corner, y_range = place_legend([traces[m] for m in members], names, recorder._y_range(members),
-                                           headroom=True)
+            size = size_of[title]  # the plot's size in the default layout
+            corner, y_range = place_legend([traces[m] for m in members], names, recorder._y_range(members, size),
+                                           headroom=True, size_px=size)
             assert legends[title]["PlotLegend:corner"] == [getattr(Corner2D, corner).value]
 
 

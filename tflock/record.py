@@ -345,8 +345,8 @@ WHOLE_RUN = rrb.TimeAxis(view_range=rr.TimeRange(start=rr.TimeRangeBoundary.infi
 #: the colours view's spacing of the field's swatch columns (its own units: the wheel's radius is 1), wide enough for
 #: a heading's name in degrees under every other column (a label of 4 characters is 38 px wide)
 SWATCH_STEP = 0.45
-#: plots in a tab at most (3 rows of 2; about 150 px a plot at 1280 x 800, where 12 left about 70 px, too little for
-#: their axis labels): more go to tabs "metrics 2", "metrics 3"
+#: plots in a tab at most (3 rows of 2; about 130 px a plot at 1280 x 800, :data:`PLOT_PX`, where 12 left about
+#: 70 px, too little for their axis labels): more go to tabs "metrics 2", "metrics 3"
 PLOTS_PER_TAB = 6
 #: the height of the strip of constant series under a tab's grid, in rows of the grid
 STRIP_ROWS = 0.75
@@ -358,8 +358,8 @@ def grid_columns(count: int) -> int:
     return 2 if count >= 4 else 1
 
 
-#: series a plot's legend names at most: more would not fit a plot of the grid (about 150 px high) and cover its
-#: lines; the title of a plot of more says how to find their names (hover a line)
+#: series a plot's legend names at most: six take 143 px (:data:`LEGEND_ROW_PX`), about a plot of the grid's height,
+#: more would hide its lines; the title of a plot of more says how to find their names (hover a line)
 LEGEND_MAX = 6
 #: corners a plot's legend may take, in the order tried (ties go to the first)
 LEGEND_CORNERS = ("RightTop", "LeftBottom", "RightBottom", "LeftTop")
