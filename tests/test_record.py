@@ -1301,11 +1301,12 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
 def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> None:
     """Rerun labels only decade marks, and none that are too close: values spanning more than DENSE_MARKS marks of
     their decade get the two marks of the decade above around them (with a margin, as a mark on the edge is not
-    labelled), where they lie between two such marks; the others keep the viewer's fit."""
-    from tflock.record import LABEL_MARGIN, labelled_range
+    labelled), where they lie between two such marks; values among which lies only one labelled mark get the marks
+    around them; the others keep the viewer's fit."""
+    from tflock.record import LABEL_MARGIN, enclosing_marks, labelled_range
 
     def fixed(low: float, high: float) -> tuple[float, float] | None:
-        out = labelled_range(low, high)
+        out = labelled_range(low, high) or enclosing_marks(low, high)
         return None if out is None else (round(out[0], 12), round(out[1], 12))
 
     m = LABEL_MARGIN
@@ -1317,6 +1318,14 @@ def test_labelled_range_fixes_only_plots_whose_marks_would_go_unlabelled() -> No
     assert fixed(950.0, 1400.0) is None  # 4.5 marks of 100 around the labelled 1000
     assert fixed(0.3, 0.36) == (round(0.3 - 0.1 * m, 12), round(0.4 + 0.1 * m, 12))  # low on a mark: 0.3 / 0.1 < 3
     assert fixed(0.5, 0.5) is None and fixed(0.0, math.inf) is None and fixed(0.0, math.nan) is None
+    # labelled marks, but only one among the values: the marks around them, if that at most doubles the span
+    assert fixed(-17.5, -4.9) == (round(-20 - 20 * m, 12), round(20 * m, 12))  # Tanner's Q: -20, -10 and 0
+    assert fixed(-156109.0, -14240.0) == (round(-2e5 - 2e5 * m, 12), round(2e5 * m, 12))  # potential's Q
+    assert fixed(0.95, 1.05) == (round(0.9 - 0.2 * m, 12), round(1.1 + 0.2 * m, 12))
+    assert fixed(4.0, 5.0) is None and fixed(16.0, 25.0) is None  # two marks already
+    assert fixed(1.0, 1.4) is None  # one mark, 1; the marks around, 1 and 2, would more than double the span
+    assert fixed(0.004, 1.41) is None  # Tanner's kinetic energy: 0 lies in the viewer's fit, labelled with 1
+    assert fixed(341.0, 1434.0) == (-2000 * m, 2000 * (1 + m))  # Vicsek's clusters: 1000 alone; 0, 1000, 2000
 
 
 def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None:
@@ -1344,7 +1353,7 @@ def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None
     axes = record(0.099)
     assert axes["order"]["ScalarAxis:range"] == [list(fixed)]
     assert "speed" not in axes
-    assert "order" not in record(0.15)  # 0.002 to 0.15: 1.5 marks of 0.1, labelled as fitted
+    assert "order" not in record(0.15)  # 0.002 to 0.15: 1.5 marks of 0.1, labelled as fitted (0 and 0.1)
 
 
 def test_short_plots_label_fewer_marks_and_fit_their_legends() -> None:

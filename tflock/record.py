@@ -458,8 +458,8 @@ def labelled_range(low: float, high: float, height_px: float = PLOT_PX[1]) -> tu
     the default grid's, 130 px) and lie between two neighbouring marks of the decade above (the next labelled ones),
     those two with a margin: the values then fill at least a third of the plot, between two labelled marks. Else
     None: the viewer's own fit, which labels the marks of the values' decade, or one mark of the decade above
-    inside the values. A larger window's taller plots would label the finer marks too, but the range stays
-    readable."""
+    inside the values (see :func:`enclosing_marks`). A larger window's taller plots would label the finer marks too,
+    but the range stays readable."""
     span = high - low
     if not (math.isfinite(span) and span > 0):
         return None
@@ -472,6 +472,31 @@ def labelled_range(low: float, high: float, height_px: float = PLOT_PX[1]) -> tu
     if high > top + 1e-9 * step:
         return None
     margin = LABEL_MARGIN * step  # (a mark on the plot's edge is not labelled)
+    return bottom - margin, top + margin
+
+
+#: how far beyond its values, a fraction of their span, a mark still counts as on a plot the viewer fits to them
+#: (Tanner's kinetic energy, 0.00001 to 1.3, was labelled at 0 and 1)
+FIT_MARGIN = 0.02
+
+
+def enclosing_marks(low: float, high: float) -> tuple[float, float] | None:
+    """A fixed y range for values in [low, high] among which lies only one mark of their decade (Tanner's Q, -17.5 to
+    -4.9, labelled only at -10; `potential`'s, -156,000 to -14,000, only at -100,000): the marks on either side of
+    the values, with a margin, if that at most doubles the span: three labels, the values filling at least half the
+    plot. Else None (two marks or more among the values, or too much room)."""
+    span = high - low
+    if not (math.isfinite(span) and span > 0):
+        return None
+    decade = 10.0 ** math.floor(math.log10(span))
+    near = FIT_MARGIN * span  # a mark just beyond the values is in the viewer's fit, and labelled
+    if math.floor((high + near) / decade + 1e-9) > math.ceil((low - near) / decade - 1e-9):
+        return None
+    bottom = math.floor(low / decade + 1e-9) * decade
+    top = math.ceil(high / decade - 1e-9) * decade
+    if top - bottom > 2 * span:
+        return None
+    margin = LABEL_MARGIN * (top - bottom)
     return bottom - margin, top + margin
 
 
@@ -739,9 +764,12 @@ class Recorder:
 
     def _y_range(self, members: list[str], size: tuple[float, float] = PLOT_PX) -> tuple[float, float] | None:
         """A plot's fixed y range: :func:`labelled_range` of its series' values so far on a plot of `size` pixels, or
-        None (the viewer's fit)."""
+        :func:`enclosing_marks`', or None (the viewer's fit)."""
         extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
-        return labelled_range(*value_span(extents), size[1]) if extents else None
+        if not extents:
+            return None
+        low, high = value_span(extents)
+        return labelled_range(low, high, size[1]) or enclosing_marks(low, high)
 
     def _legend(self, members: list[tuple[str, str]], y_range: tuple[float, float] | None = None,
                 final: bool = False, size: tuple[float, float] = PLOT_PX
