@@ -1293,7 +1293,7 @@ def test_gnf_plot_named_by_box_with_its_legend_off_the_data(make_sim, tmp_path: 
             assert legends[title]["PlotLegend:visible"] == [True]
             names = [f"box L/{m.rsplit('_', 1)[1]}" for m in members]
             size = size_of[title]  # the plot's size in the default layout
-            corner, y_range = place_legend([traces[m] for m in members], names, recorder._y_range(members, size),
+            corner, y_range = place_legend([traces[m] for m in members], names, recorder._y_range(members, size, True),
                                            headroom=True, size_px=size)
             assert legends[title]["PlotLegend:corner"] == [getattr(Corner2D, corner).value]
 
@@ -1354,6 +1354,21 @@ def test_dense_plots_get_a_labelled_range_from_every_row(tmp_path: Path) -> None
     assert axes["order"]["ScalarAxis:range"] == [list(fixed)]
     assert "speed" not in axes
     assert "order" not in record(0.15)  # 0.002 to 0.15: 1.5 marks of 0.1, labelled as fitted (0 and 0.1)
+
+
+def test_enclosing_marks_only_in_the_last_layout(tmp_path: Path) -> None:
+    """Values with one labelled mark among them (-17.5 to -4.9) get the marks around them in the run's last layout
+    only: while the run goes on, a range fixed around the values so far could cut off those to come."""
+    from tflock.record import enclosing_marks
+
+    with Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS,
+                  path=tmp_path / "q.rrd") as rec:
+        for step in range(10):
+            rec.log_metrics(step, {"order": -17.5 + 1.4 * step, "speed": 1.0 + 0.01 * step})
+        assert rec._y_range(["order"]) is None
+        assert rec._y_range(["order"], final=True) == enclosing_marks(-17.5, -4.9)
+    assert _plot_components(tmp_path / "q.rrd", "ScalarAxis")["order"]["ScalarAxis:range"] == \
+        [list(enclosing_marks(-17.5, -4.9))]
 
 
 def test_short_plots_label_fewer_marks_and_fit_their_legends() -> None:

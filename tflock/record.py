@@ -743,7 +743,7 @@ class Recorder:
             members = groups[group]
             names = [m for m, _ in members]
             title = group if len(names) <= LEGEND_MAX else f"{group} (hover names)"
-            legend, y_range = self._legend(members, self._y_range(names, size), final, size)
+            legend, y_range = self._legend(members, self._y_range(names, size, final), final, size)
             views.append(rrb.TimeSeriesView(
                 name=title, origin=f"/{METRICS}", contents=[f"/{METRICS}/{m}" for m in names],
                 plot_legend=legend, axis_x=WHOLE_RUN,
@@ -762,14 +762,16 @@ class Recorder:
                            for k, m in enumerate(constant)}))
         return views
 
-    def _y_range(self, members: list[str], size: tuple[float, float] = PLOT_PX) -> tuple[float, float] | None:
+    def _y_range(self, members: list[str], size: tuple[float, float] = PLOT_PX,
+                 final: bool = False) -> tuple[float, float] | None:
         """A plot's fixed y range: :func:`labelled_range` of its series' values so far on a plot of `size` pixels, or
-        :func:`enclosing_marks`', or None (the viewer's fit)."""
+        in a run's `final` layout :func:`enclosing_marks`' (while a run goes on, its values may still outgrow a
+        range fixed around those so far), or None (the viewer's fit)."""
         extents = [e for e in (self._rows.extent(m) for m in members) if e is not None]
         if not extents:
             return None
         low, high = value_span(extents)
-        return labelled_range(low, high, size[1]) or enclosing_marks(low, high)
+        return labelled_range(low, high, size[1]) or (enclosing_marks(low, high) if final else None)
 
     def _legend(self, members: list[tuple[str, str]], y_range: tuple[float, float] | None = None,
                 final: bool = False, size: tuple[float, float] = PLOT_PX
