@@ -1371,15 +1371,29 @@ def test_enclosing_marks_only_in_the_last_layout(tmp_path: Path) -> None:
         [list(enclosing_marks(-17.5, -4.9))]
 
 
+def test_plot_sizes_follow_the_tabs_layout() -> None:
+    """Each plot's size is that of its place in the tabs :meth:`_metric_tabs` builds: a full tab's 3 x 2 grid, a
+    last tab of one plot above the strip of constant series, and the strip's share of that tab (no colours view)."""
+    from tflock.record import STRIP_ROWS, plot_px
+
+    rec = Recorder(model="m", config_toml="", world=WorldSpec(2, "periodic", 5.0), metrics=METRICS)
+    assert rec._plot_sizes(8, strip=True) == [plot_px(2, 3, False)] * 6 + [plot_px(1, 1 + STRIP_ROWS, False),
+                                                                            plot_px(1, (1 + STRIP_ROWS) / STRIP_ROWS,
+                                                                                    False)]
+    assert rec._plot_sizes(4, strip=False) == [plot_px(2, 2, False)] * 4
+    rec.close()
+
+
 def test_short_plots_label_fewer_marks_and_fit_their_legends() -> None:
     """A plot's labels and its legend are judged at its height in the default layout: min_distance in [0.25, 0.6]
     (3.5 marks of 0.1) is labelled as fitted on a plot of the first tab's 3 x 2 grid (130 px) but gets the range 0 to
     1 on one 64 px high; four plots share a tab in two columns, not one (their legends and labels need the height)."""
-    from tflock.record import PLOT_PX, grid_columns, labelled_range, plot_px
+    from tflock.record import PLOT_PX, labelled_range, plot_px, tab_pages
 
     assert labelled_range(0.25, 0.6) is None and labelled_range(0.25, 0.6, PLOT_PX[1]) is None
     assert labelled_range(0.25, 0.6, 64.0) == pytest.approx((-0.08, 1.08))
-    assert [grid_columns(k) for k in range(1, 7)] == [1, 1, 1, 2, 2, 2]
+    assert [tab_pages(k)[0][2] for k in range(1, 7)] == [1, 1, 1, 2, 2, 2]  # columns
+    assert tab_pages(16) == [(0, 6, 2), (6, 6, 2), (12, 4, 2)] and tab_pages(7) == [(0, 6, 2), (6, 1, 1)]
     assert abs(plot_px(2, 3)[1] - PLOT_PX[1]) < 5 and abs(plot_px(2, 3)[0] - PLOT_PX[0]) < 20
     assert plot_px(2, 2 + 0.75)[1] > 120  # four plots and the strip of constant series under the colours view
 

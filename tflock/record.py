@@ -352,10 +352,12 @@ PLOTS_PER_TAB = 6
 STRIP_ROWS = 0.75
 
 
-def grid_columns(count: int) -> int:
-    """Columns of a metric tab's grid of `count` plots: two from 4 plots (four in one column under the colours view
-    were 64 px high each at 1280 x 800: too low for a legend of two series, and their y axes went unlabelled)."""
-    return 2 if count >= 4 else 1
+def tab_pages(count: int) -> list[tuple[int, int, int]]:
+    """The metric tabs' grids of `count` plots: (first plot, plots, columns) of each tab, at most
+    :data:`PLOTS_PER_TAB` a tab, in two columns from 4 plots (four in one column under the colours view were 64 px
+    high each at 1280 x 800: too low for a legend of two series, and their y axes went unlabelled)."""
+    return [(first, on_page := min(PLOTS_PER_TAB, count - first), 2 if on_page >= 4 else 1)
+            for first in range(0, count, PLOTS_PER_TAB)]
 
 
 #: series a plot's legend names at most: six take 143 px (:data:`LEGEND_ROW_PX`), about a plot of the grid's height,
@@ -694,37 +696,35 @@ class Recorder:
 
     def _metric_tabs(self, constant: tuple[str, ...], final: bool = False) -> list[rrb.Container | rrb.View]:
         """The metric plots in tabs of at most :data:`PLOTS_PER_TAB` ("metrics", "metrics 2", ...), in two columns
-        from 4 (:func:`grid_columns`); the plot of the `constant` series takes no place in a tab's grid: it is a strip
+        from 4 (:func:`tab_pages`); the plot of the `constant` series takes no place in a tab's grid: it is a strip
         under the last tab, three quarters of a row high, as a flat line needs little height (Vicsek's 12 plots and
         its constant one in two tabs, where a third tab held that one plot alone)."""
         plots = self._plots(constant, final)
         strip = plots.pop() if constant and len(plots) > 1 else None
-        pages = [plots[i:i + PLOTS_PER_TAB] for i in range(0, len(plots), PLOTS_PER_TAB)]
+        pages = tab_pages(len(plots))
         tabs: list[rrb.Container | rrb.View] = []
-        for k, page in enumerate(pages):
+        for k, (first, on_page, columns) in enumerate(pages):
             name = "metrics" if k == 0 else f"metrics {k + 1}"
-            columns = grid_columns(len(page))
-            tab: rrb.Container | rrb.View = rrb.Grid(*page, grid_columns=columns, name=name) if len(page) > 1 \
+            page = plots[first:first + on_page]
+            tab: rrb.Container | rrb.View = rrb.Grid(*page, grid_columns=columns, name=name) if on_page > 1 \
                 else page[0]
             if strip is not None and k == len(pages) - 1:
-                rows = -(-len(page) // columns)
-                tab = rrb.Vertical(tab, strip, row_shares=[rows, STRIP_ROWS], name=name)
+                tab = rrb.Vertical(tab, strip, row_shares=[-(-on_page // columns), STRIP_ROWS], name=name)
             tabs.append(tab)
         return tabs
 
     def _plot_sizes(self, count: int, strip: bool) -> list[tuple[float, float]]:
         """The size in pixels (:func:`plot_px`) of each of `count` plots as :meth:`_metric_tabs` lays them out in
         the default layout at 1280 x 800, the last of them the strip of constant series where `strip`."""
-        grid = count - 1 if strip else count
         colours = self._has_legend()
         sizes: list[tuple[float, float]] = []
+        pages = tab_pages(count - 1 if strip else count)
         rows = 1.0
-        for first in range(0, grid, PLOTS_PER_TAB):
-            on_page = min(PLOTS_PER_TAB, grid - first)
-            columns = grid_columns(on_page)
-            rows = -(-on_page // columns) + (STRIP_ROWS if strip and first + on_page == grid else 0.0)
+        for k, (_, on_page, columns) in enumerate(pages):
+            last = strip and k == len(pages) - 1  # the strip: under the last tab's grid
+            rows = -(-on_page // columns) + (STRIP_ROWS if last else 0.0)
             sizes += [plot_px(columns, rows, colours)] * on_page
-        if strip:  # its share of the last page's rows
+        if strip:  # its share of the last tab's rows
             sizes.append(plot_px(1, rows / STRIP_ROWS, colours))
         return sizes
 
@@ -1434,6 +1434,13 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+def _viewer_env() -> dict[str, str]:
+    """The environment of a viewer tflock starts: Rerun's own log at warnings and above (unless RUST_LOG says
+    otherwise), as its info lines, with colour codes and a second address of its own, buried the address tflock
+    prints."""
+    return {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
+
+
 def _exit_reason(log: str, code: int) -> str:
     """Why a Rerun viewer exited, from its log: its last error line (without colour codes), else its exit code."""
     lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in log.splitlines()]
@@ -1451,11 +1458,11 @@ def spawn_viewer(port: int = SPAWN_PORT, timeout: float = SPAWN_TIMEOUT_S) -> Pa
     does not listen within `timeout` seconds."""
     if _listening(port):
         return None
-    env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
     with tempfile.NamedTemporaryFile("w", prefix="tflock-viewer-", suffix=".log", delete=False) as out:
         proc = subprocess.Popen([*rerun_executable(), "--port", str(port), "--bind", "127.0.0.1", "--memory-limit",
                                  "75%", "--expect-data-soon"],  # the flags of Rerun's own spawn()
-                                stdin=subprocess.DEVNULL, stdout=out, stderr=out, env=env, start_new_session=True)
+                                stdin=subprocess.DEVNULL, stdout=out, stderr=out, env=_viewer_env(),
+                                start_new_session=True)
     log = Path(out.name)
     deadline, settled = time.monotonic() + timeout, None
     while settled is None or time.monotonic() < settled:  # listening, and still running SPAWN_GRACE_S later
@@ -1539,10 +1546,7 @@ def open_viewer(path: Path | None, web: bool = False, port: int | None = None,
             cmd = [*rerun_executable(), str(path)]
     if path is None:
         print(f"Stream a run to it: tflock sim --connect {stream_url}", flush=True)
-    # Rerun's own log at warnings and above (unless RUST_LOG says otherwise): its info lines, with colour codes and a
-    # second address of its own, buried the one printed above
-    env = {**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")}
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=_viewer_env())
     try:
         code = proc.wait()
     except KeyboardInterrupt:
